@@ -1,0 +1,389 @@
+"""A self-contained, printable HTML report of one truck measurement, for an enforcement officer.
+
+One file, no external resources: CSS is inline, PNG plots are embedded as base64 data URIs,
+every text from the measurement is HTML-escaped. The file is written atomically.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import html
+import json
+import logging
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+from stereo_recon.errors import InputError
+from stereo_recon.manifest import to_jsonable
+
+log = logging.getLogger(__name__)
+
+DIMENSIONS = ("length", "width", "height")
+# The full measurement record is embedded for reference; beyond this it is cut (it stays in measurement.json).
+_MAX_RECORD_CHARS = 200_000
+
+# verdict -> (css class, banner text, table text)
+_VERDICT_STYLE = {
+    "over": ("v-over", "OVER THE LIMIT", "over"),
+    "within": ("v-within", "WITHIN THE LIMITS", "within"),
+    "undecided": ("v-undecided", "UNDECIDED: a limit lies inside the measurement uncertainty", "undecided"),
+    "not-applicable": ("v-na", "NO LEGAL VERDICT", "n/a"),
+    "no-limit": ("v-na", "NO LIMIT SET", "no limit"),
+    "not-measured": ("v-undecided", "NOT MEASURED", "not measured"),
+}
+
+# image keys shown first, in this order, with their captions; other keys follow alphabetically
+_IMAGE_ORDER = {
+    "top_view": "Top view: points on the ground plane and the fitted rectangle",
+    "side_view": "Side view: points above the fitted ground and the height",
+    "width_density": "Density along the width axis (the paper's Fig. 5): width = distance between the two side peaks",
+    "length_density": "Density along the length axis (the paper's Fig. 6): length = rear peak to front extreme",
+}
+
+_CSS = """
+:root { --over:#b71c1c; --within:#1b5e20; --undecided:#e65100; --na:#455a64; --line:#cfd8dc; }
+* { box-sizing: border-box; }
+body { font-family: "Segoe UI", Helvetica, Arial, sans-serif; color:#212121; margin:0 auto; max-width:1100px;
+       padding:24px; line-height:1.4; }
+h1 { font-size:1.6em; margin:0 0 4px 0; } h2 { font-size:1.2em; margin:28px 0 8px 0; border-bottom:2px solid var(--line); }
+.meta { color:#546e7a; font-size:0.92em; } .mono { font-family: Consolas, "DejaVu Sans Mono", monospace; word-break: break-all; }
+.banner { margin:18px 0; padding:16px 20px; border-radius:6px; color:#fff; font-size:1.5em; font-weight:700; }
+.banner .reason { display:block; font-size:0.6em; font-weight:400; margin-top:4px; }
+.banner.v-over { background:var(--over); } .banner.v-within { background:var(--within); }
+.banner.v-undecided { background:var(--undecided); } .banner.v-na { background:var(--na); }
+table { border-collapse:collapse; width:100%; }
+th, td { border:1px solid var(--line); padding:6px 10px; text-align:left; vertical-align:top; }
+th { background:#eceff1; }
+table.dims td.num { font-size:1.35em; font-weight:600; white-space:nowrap; }
+td.verdict { font-weight:700; text-transform:uppercase; white-space:nowrap; }
+td.v-over { color:#fff; background:var(--over); } td.v-within { color:#fff; background:var(--within); }
+td.v-undecided { color:#fff; background:var(--undecided); } td.v-na { color:#fff; background:var(--na); }
+.small { font-size:0.88em; color:#455a64; }
+.warn { border-left:5px solid var(--undecided); background:#fff3e0; padding:8px 12px; margin:10px 0; }
+figure { margin:16px 0; page-break-inside:avoid; break-inside:avoid; }
+figure img { max-width:100%; border:1px solid var(--line); }
+figcaption { font-size:0.9em; color:#455a64; }
+details { margin:10px 0; border:1px solid var(--line); border-radius:4px; padding:6px 10px; }
+summary { cursor:pointer; font-weight:600; }
+pre { white-space:pre-wrap; word-break:break-all; font-size:0.82em; background:#fafafa; padding:8px; }
+footer { margin-top:30px; font-size:0.8em; color:#78909c; }
+@media print {
+  body { max-width:none; padding:0; font-size:10.5pt; }
+  .banner, td.verdict, th { -webkit-print-color-adjust:exact; print-color-adjust:exact; }
+  details { border:none; padding:0; } summary { list-style:none; }
+  h2 { page-break-after:avoid; break-after:avoid; }
+  table.dims, .banner { page-break-inside:avoid; break-inside:avoid; }
+}
+"""
+
+# Closed <details> do not print; open them all when the officer prints (no external script).
+_PRINT_SCRIPT = (
+    "window.addEventListener('beforeprint',function(){"
+    "document.querySelectorAll('details').forEach(function(d){d.open=true;});});"
+)
+
+
+def _e(value: Any) -> str:
+    """HTML-escaped text of any value."""
+    return html.escape("" if value is None else str(value), quote=True)
+
+
+def _num(v: Any) -> float | None:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def _fmt_m(v: Any, decimals: int = 3) -> str:
+    f = _num(v)
+    return "&ndash;" if f is None else f"{f:.{decimals}f}&nbsp;m"
+
+
+def _decimals(*values: Any) -> int:
+    """3 decimals (mm) for road vehicles, 4 for scale models."""
+    vs = [abs(f) for f in map(_num, values) if f is not None]
+    return 4 if vs and max(vs) < 4.0 else 3
+
+
+def _image_data_uri(path: Path) -> str | None:
+    try:
+        data = Path(path).read_bytes()
+    except OSError as err:
+        log.warning("report: cannot read image %s (%s); left out", path, err)
+        return None
+    if data.startswith(b"\x89PNG\r\n\x1a\n"):
+        mime = "image/png"
+    elif data.startswith(b"\xff\xd8\xff"):
+        mime = "image/jpeg"
+    else:
+        log.warning("report: %s is not a PNG or JPEG image; left out", path)
+        return None
+    return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
+
+
+def _find_sha256(measurement: Mapping, run_info: Mapping) -> list[tuple[str, str, str]]:
+    """(label, path, sha256) of the inputs, from the places the measure/run stages record them."""
+    found: list[tuple[str, str, str]] = []
+    for src in (measurement, run_info):
+        for key in ("input", "cloud"):
+            item = src.get(key)
+            if isinstance(item, Mapping) and item.get("sha256"):
+                found.append((key, str(item.get("path", "")), str(item["sha256"])))
+        if src.get("input_sha256"):
+            path = src.get("input_path") or src.get("input")
+            found.append(("input", "" if isinstance(path, Mapping) or path is None else str(path), str(src["input_sha256"])))
+        inputs = src.get("inputs")
+        if isinstance(inputs, Mapping):
+            for name, item in inputs.items():
+                if isinstance(item, Mapping) and item.get("sha256"):
+                    found.append((str(name), str(item.get("path", "")), str(item["sha256"])))
+    seen, out = set(), []
+    for row in found:
+        if row[2] not in seen:
+            seen.add(row[2])
+            out.append(row)
+    return out
+
+
+def _rule_text(rule: Any) -> str:
+    if rule is None:
+        return ""
+    if isinstance(rule, Mapping):
+        return "; ".join(f"{k}: {v}" for k, v in rule.items())
+    return str(rule)
+
+
+def _kv_table(d: Mapping) -> str:
+    rows = []
+    for k, v in d.items():
+        if isinstance(v, (Mapping, list, tuple)):
+            val = f"<pre>{_e(json.dumps(to_jsonable(v), indent=2, ensure_ascii=False))}</pre>"
+        else:
+            val = _e(v)
+        rows.append(f"<tr><th>{_e(k)}</th><td class='mono'>{val}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>" if rows else "<p class='small'>none recorded</p>"
+
+
+def _fmt_limit(lim: float) -> str:
+    return f"{lim:.4f}".rstrip("0").rstrip(".") + "&nbsp;m"
+
+
+def _dimension_rows(measurement: Mapping, verdict: Mapping) -> tuple[str, bool]:
+    vdims = verdict.get("dimensions") or {}
+    unc = measurement.get("uncertainty_m") or {}
+    rules = measurement.get("rules") or {}
+    scale = _num(verdict.get("scale"))
+    k = _num(verdict.get("k_sigma"))
+    # one precision per column set: mm for road vehicles, 0.1 mm for scale models
+    dec_measured = _decimals(measurement.get("length_m"))
+    dec_assessed = _decimals((vdims.get("length") or {}).get("value_m"))
+    rows = []
+    for d in DIMENSIONS:
+        v = measurement.get(f"{d}_m")
+        u = unc.get(d) if isinstance(unc, Mapping) else None
+        vd = vdims.get(d) or {}
+        status = vd.get("verdict") or ("not-applicable" if verdict.get("overall") == "not-applicable" else "")
+        css, _, label = _VERDICT_STYLE.get(status, ("v-na", "", status))
+        measured = _fmt_m(v, dec_measured) + (f" &plusmn; {_fmt_m(u, dec_measured)}" if _num(u) is not None else "")
+        cells = [f"<td><b>{_e(d.capitalize())}</b></td>", f"<td class='num'>{measured}</td>"]
+        assessed_v, assessed_u = _num(vd.get("value_m")), _num(vd.get("uncertainty_m"))
+        if scale is not None:
+            sv = _fmt_m(assessed_v, dec_assessed)
+            if assessed_u is not None:
+                sv += f" &plusmn; {_fmt_m(assessed_u, dec_assessed)}"
+            cells.append(f"<td class='num'>{sv}</td>")
+        if assessed_v is not None and assessed_u is not None and k is not None:
+            interval = f"{assessed_v - k * assessed_u:.{dec_assessed}f} &ndash; {assessed_v + k * assessed_u:.{dec_assessed}f}&nbsp;m"
+        else:
+            interval = "&ndash;"
+        lim = _num(vd.get("limit_m"))
+        cells.append(f"<td>{interval}</td>")
+        cells.append(f"<td>{_fmt_limit(lim) if lim is not None else 'no limit'}</td>")
+        margin = _num(vd.get("margin_m"))
+        cells.append(f"<td>{'&ndash;' if margin is None else f'{margin:+.{dec_assessed}f}&nbsp;m'}</td>")
+        cells.append(f"<td class='verdict {css}'>{_e(label) if label else '&ndash;'}</td>")
+        rule = _rule_text(rules.get(d) if isinstance(rules, Mapping) else None)
+        cells.append(f"<td class='small'>{_e(rule) if rule else '&ndash;'}</td>")
+        rows.append("<tr>" + "".join(cells) + "</tr>")
+    return "".join(rows), scale is not None
+
+
+def render_report_html(
+    measurement: Mapping[str, Any],
+    image_paths: Mapping[str, str | os.PathLike],
+    out_path: str | os.PathLike,
+    run_info: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write one self-contained HTML report of a truck measurement and return its path.
+
+    measurement: the measure stage's result (the content of measurement.json): ``length_m``,
+        ``width_m``, ``height_m``, ``uncertainty_m`` {length, width, height}, ``verdict`` (from
+        :func:`measure.limits.over_limit_verdict`), optionally ``rules`` {length, width, height}
+        (which rule produced each number), ``parameters``, ``versions``, the input's sha256
+        (``input`` {path, sha256} / ``input_sha256`` / ``inputs``), ``warnings`` and anything else.
+    image_paths: plot name -> PNG file, e.g. {"top_view": ..., "side_view": ...,
+        "width_density": ..., "length_density": ...}; embedded as base64 (unreadable files
+        are left out with a note).
+    out_path: HTML file to write (atomically).
+    run_info: optional job information (video, calibration, stages, timings, versions).
+    """
+    run_info = dict(run_info or {})
+    verdict = measurement.get("verdict") or {}
+    if not isinstance(verdict, Mapping):
+        verdict = {"overall": str(verdict)}
+    overall = str(verdict.get("overall") or "")
+    css, banner_text, _ = _VERDICT_STYLE.get(overall, ("v-na", overall.upper() or "NO VERDICT", overall))
+    reg = verdict.get("regulation") or {}
+    created = run_info.get("created_utc") or measurement.get("created_utc") or time.strftime("%Y-%m-%d %H:%M:%SZ", time.gmtime())
+
+    parts: list[str] = []
+    add = parts.append
+    add("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>")
+    add("<meta name='viewport' content='width=device-width, initial-scale=1'>")
+    title = "Truck dimension measurement"
+    add(f"<title>{_e(title)}</title><style>{_CSS}</style><script>{_PRINT_SCRIPT}</script></head><body>")
+    add(f"<h1>{_e(title)}</h1>")
+    sha_rows = _find_sha256(measurement, run_info)
+    source_name = run_info.get("video") or measurement.get("input_path") or (sha_rows[0][1] if sha_rows else "")
+    add(f"<div class='meta'>Report created {_e(created)}" + (f" &middot; input {_e(Path(str(source_name)).name)}" if source_name else "") + "</div>")
+
+    # --- verdict banner ---------------------------------------------------------------------
+    reason = verdict.get("reason") or ""
+    add(f"<div class='banner {css}'>{_e(banner_text)}<span class='reason'>{_e(reason)}</span></div>")
+
+    # --- dimension table --------------------------------------------------------------------
+    add("<h2>Dimensions</h2>")
+    rows, scaled = _dimension_rows(measurement, verdict)
+    k = _num(verdict.get("k_sigma"))
+    head = ["Dimension", "Measured (&plusmn; 1&sigma;)"]
+    if scaled:
+        head.append(f"Real size (scale &times;{_e(verdict.get('scale'))})")
+    head += [f"Interval (&plusmn; {_e(f'{k:g}') if k is not None else 'k'}&sigma;)", "Limit", "Margin", "Verdict", "How it was measured"]
+    add("<table class='dims'><tr>" + "".join(f"<th>{h}</th>" for h in head) + f"</tr>{rows}</table>")
+    add("<p class='small'>Over: the whole interval lies above the limit. Within: the whole interval is at or "
+        "below the limit. Undecided: the limit lies inside the interval. Margin = limit &minus; value.</p>")
+    warnings = measurement.get("warnings") or []
+    if isinstance(warnings, str):
+        warnings = [warnings]
+    for w in warnings:
+        add(f"<div class='warn'>{_e(w)}</div>")
+
+    # --- regulation ---------------------------------------------------------------------------
+    add("<h2>Regulation applied</h2>")
+    if reg:
+        reg_rows = {
+            "Regulation": f"{reg.get('name', '')}: {reg.get('title', '')}",
+            "Source": reg.get("source", ""),
+            "Vehicle class": f"{verdict.get('vehicle_class', '')}"
+            + (f" ({verdict.get('class_description')})" if verdict.get("class_description") else "")
+            + (" (the table's default class)" if verdict.get("class_is_default") else ""),
+        }
+        if verdict.get("class_citation"):
+            reg_rows["Citation"] = verdict["class_citation"]
+        if reg.get("notes"):
+            reg_rows["Notes"] = reg["notes"]
+        reg_rows["Coverage factor k"] = verdict.get("k_sigma", "")
+        reg_rows["Model-to-real scale"] = "none (measured size taken as real size)" if verdict.get("scale") is None else verdict.get("scale")
+        add("<table>" + "".join(f"<tr><th>{_e(a)}</th><td>{_e(b)}</td></tr>" for a, b in reg_rows.items()) + "</table>")
+    else:
+        add("<p class='small'>No regulation was applied.</p>")
+
+    # --- plots ----------------------------------------------------------------------------------
+    keys = [k_ for k_ in _IMAGE_ORDER if k_ in image_paths] + sorted(k_ for k_ in image_paths if k_ not in _IMAGE_ORDER)
+    if keys:
+        add("<h2>Plots</h2>")
+    for key in keys:
+        uri = _image_data_uri(Path(image_paths[key]))
+        caption = _IMAGE_ORDER.get(key, key.replace("_", " "))
+        if uri is None:
+            add(f"<div class='warn'>Plot '{_e(key)}' could not be read and is left out.</div>")
+            continue
+        add(f"<figure><img src='{uri}' alt='{_e(caption)}'><figcaption>{_e(caption)}</figcaption></figure>")
+
+    # --- provenance -----------------------------------------------------------------------------
+    add("<h2>Provenance</h2>")
+    if sha_rows:
+        add("<table><tr><th>Input</th><th>File</th><th>SHA-256</th></tr>"
+            + "".join(f"<tr><td>{_e(a)}</td><td class='mono'>{_e(b)}</td><td class='mono'>{_e(c)}</td></tr>" for a, b, c in sha_rows)
+            + "</table>")
+    else:
+        add("<p class='small'>No input checksum recorded.</p>")
+    params = measurement.get("parameters") or measurement.get("config")
+    if params:
+        add(f"<details><summary>Parameters used</summary>{_kv_table(params) if isinstance(params, Mapping) else '<pre>' + _e(params) + '</pre>'}</details>")
+    versions = measurement.get("versions") or run_info.get("versions")
+    if versions:
+        add(f"<details><summary>Software versions</summary>{_kv_table(versions) if isinstance(versions, Mapping) else '<pre>' + _e(versions) + '</pre>'}</details>")
+    if run_info:
+        add(f"<details><summary>Run</summary>{_kv_table({k_: v for k_, v in run_info.items() if k_ != 'versions'})}</details>")
+    record = json.dumps(to_jsonable(measurement), indent=2, ensure_ascii=False)
+    if len(record) > _MAX_RECORD_CHARS:
+        record = record[:_MAX_RECORD_CHARS] + f"\n... ({len(record) - _MAX_RECORD_CHARS:,} more characters in measurement.json)"
+    add(f"<details><summary>Full measurement record (measurement.json)</summary><pre>{_e(record)}</pre></details>")
+    add("<footer>stereo-recon: truck outer dimensions from drone stereo video. "
+        "The verdict compares the measurement interval with the regulation's limits; a legal decision "
+        "remains with the officer.</footer></body></html>")
+
+    return _write_atomic(Path(out_path), "\n".join(parts))
+
+
+def _write_atomic(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        _chmod_default(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def _chmod_default(path: str) -> None:
+    """mkstemp creates 0600 files; give the report the permissions a plain open() would (0666 & ~umask)."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(path, 0o666 & ~umask)
+
+
+def render_report_from_dir(run_dir: str | os.PathLike, out_path: str | os.PathLike | None = None,
+                           run_info: Mapping[str, Any] | None = None) -> Path:
+    """Render ``report.html`` from an output folder: its measurement.json, every PNG in it, and run info.
+
+    run_dir: folder holding ``measurement.json`` and the plots (``<name>.png``; the name is the
+        plot's key, e.g. ``top_view.png``).
+    out_path: HTML file to write; default ``run_dir/report.html``.
+    run_info: job information; default: ``run.json`` (reconstruction manifest) of the folder, if any.
+    Raises InputError when measurement.json is missing or unreadable.
+    """
+    run_dir = Path(run_dir)
+    mpath = run_dir / "measurement.json"
+    try:
+        measurement = json.loads(mpath.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{mpath}: no measurement to report (run the measure stage first)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"{mpath}: cannot read measurement ({err})") from err
+    if not isinstance(measurement, dict):
+        raise InputError(f"{mpath}: not a measurement record (expected a JSON object)")
+    if run_info is None:
+        run_info = {}
+        rpath = run_dir / "run.json"
+        if rpath.is_file():
+            try:
+                loaded = json.loads(rpath.read_text(encoding="utf-8"))
+                run_info = loaded if isinstance(loaded, dict) else {}
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+                log.warning("report: ignoring unreadable %s (%s)", rpath, err)
+    images = {p.stem: p for p in sorted(run_dir.glob("*.png"))}
+    return render_report_html(measurement, images, out_path if out_path is not None else run_dir / "report.html", run_info)
