@@ -63,7 +63,7 @@ def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int 
         render_sequence(preset, scene, seed=seed, frames=frames)
     render_s = time.perf_counter() - t0
     video, calib, truth = _scene_files(scene)
-    summary = run_video(video, calib, run_dir, RunConfig(poses=poses, resume=True))
+    summary = run_video(video, calib, run_dir, RunConfig(poses=poses, resume=True, quiet=True))
     err_pct = {d: 100.0 * abs(summary[f"{d}_m"] - truth[f"{d}_m"]) / truth[f"{d}_m"] for d in DIMS}
     err_pct["overall"] = float(np.mean([err_pct[d] for d in DIMS]))
     return {
@@ -132,7 +132,7 @@ def study_values(study: str) -> tuple[str, np.ndarray]:
     if study == "ground-thickness":
         return "ground_thickness_m", np.round(np.arange(0.060, 0.0801, 0.002), 4)
     if study == "fof-eps":
-        return "fof_eps_m", np.round(np.arange(0.03, 0.1201, 0.01), 3)
+        return "eps_m", np.round(np.arange(0.03, 0.1201, 0.01), 3)
     raise ConfigError(f"--study: unknown study '{study}' (use ground-thickness or fof-eps)")
 
 

@@ -66,6 +66,7 @@ class RunConfig:
     rectified: bool | None = None        # force frames as already rectified (None: from the calibration)
     measure_config: Path | None = None   # TOML/YAML with MeasureConfig overrides
     reconstruct_overrides: dict = field(default_factory=dict)
+    quiet: bool = False                  # no progress line on the terminal
 
 
 def find_sample() -> tuple[Path, Path]:
@@ -100,7 +101,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     Returns the job summary dict (also written to ``job.json``).
     """
     from calib.io import parse_calib_arg  # noqa: PLC0415 - heavy imports stay inside the job
-    from measure.pipeline import MeasureConfig, load_measure_config, measure_cloud_file
+    from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
     from stereo_recon.reconstruct import ReconstructConfig, reconstruct
 
     video = Path(video)
@@ -114,24 +115,29 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
         log.info("reconstruct: reusing %s", paths.cloud)
         stages["reconstruct"] = {"status": "reused"}
     else:
-        rig = parse_calib_arg(str(calib))
-        if config.rectified is not None:
-            rig = replace(rig, rectified=config.rectified) if not config.rectified else _as_rectified(rig)
-        rcfg = replace(ReconstructConfig(poses=config.poses), **config.reconstruct_overrides)
+        from stereo_recon.reconstruct import TerminalProgress
+        from stereo_recon.video import open_stereo_source
+
+        rig = parse_calib_arg(str(calib), image_size=open_stereo_source(video).eye_size)
+        rcfg = replace(ReconstructConfig(poses=config.poses, rectified=config.rectified), **config.reconstruct_overrides)
+        progress = TerminalProgress(enabled=False if config.quiet else None)
         try:
-            reconstruct(video, rig, paths.root, rcfg)
+            reconstruct(video, rig, paths.root, rcfg, calib_path=Path(calib) if Path(calib).exists() else None,
+                        progress=progress)
         except StereoReconError:
             raise
         except Exception as err:  # a bug or library failure inside the stage: name the stage
             raise StageError("reconstruct", f"{type(err).__name__}: {err}") from err
+        finally:
+            progress.close()
         stages["reconstruct"] = {"status": "done", "time_s": time.perf_counter() - t0}
 
     meta = json.loads(paths.run_json.read_text())
     up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
-    centre = np.asarray(meta["orbit_centre"], float) if meta.get("orbit_centre") is not None else None
+    centre = _orbit_centre(paths.poses)
 
     t1 = time.perf_counter()
-    mcfg = load_measure_config(config.measure_config) if config.measure_config else MeasureConfig()
+    mcfg = load_config(config.measure_config) if config.measure_config else MeasureConfig()
     try:
         result = measure_cloud_file(
             paths.cloud, paths.root, mcfg, up_hint=up, centre_hint=centre,
@@ -161,9 +167,13 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     return summary
 
 
-def _as_rectified(rig):
-    """The rig seen as already-rectified frames (SVO export): rectified pinhole, D = 0, R = I."""
-    from calib.rig import StereoRig
+def _orbit_centre(poses_path: Path) -> np.ndarray | None:
+    """Mean camera centre of the trajectory (world frame): the truck sits there on an orbit."""
+    from stereo_recon.trajectory import read_tum
 
-    rect = rig.rectification()
-    return StereoRig.from_rectified(rect.focal_px, rect.focal_px, rect.cx_px, rect.cy_px, rect.baseline_m, rig.image_size)
+    try:
+        traj = read_tum(poses_path)
+    except Exception:  # a missing/odd trajectory only loses the hint
+        return None
+    centres = traj.T_wc[:, :3, 3]
+    return centres.mean(axis=0) if len(centres) else None

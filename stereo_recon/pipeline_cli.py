@@ -60,7 +60,8 @@ def _job_config(args, resume: bool):
     if args.scale is not None and not args.scale > 0:
         raise ConfigError(f"--scale: must be > 0, got {args.scale}")
     return RunConfig(poses=args.poses, regulation=args.regulation, vehicle_class=args.vehicle_class, scale=args.scale,
-                     resume=resume, rectified=args.rectified, measure_config=args.config)
+                     resume=resume, rectified=args.rectified, measure_config=args.config,
+                     quiet=bool(getattr(args, "quiet", False)))
 
 
 def _print_summary(s: dict) -> None:
@@ -99,7 +100,9 @@ def _run_one(video: str, calib: str, out_dir: str, cfg) -> dict:
 def _cmd_batch(args) -> int:
     from stereo_recon.batch import Job, run_jobs, write_summary_csv
 
-    cfg = _job_config(args, args.resume)
+    from dataclasses import replace
+
+    cfg = replace(_job_config(args, args.resume), quiet=True)  # parallel jobs: no per-job progress lines
     names = [v.stem for v in args.videos]
     dupes = {n for n in names if names.count(n) > 1}
     jobs = []

@@ -1,0 +1,218 @@
+"""``stereo-recon calibrate`` and ``stereo-recon calib-check``: thin command layers over ``calib``."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="calibrate a stereo rig from a board video or image pairs",
+        description="Calibrate a stereo rig from a side-by-side video (frames chosen automatically) or a folder "
+                    "of left/right image pairs (left01.jpg/right01.jpg, or left/ and right/ subfolders). Writes the "
+                    "rig YAML, <out>.report.json and <out>.coverage.png.")
+    p.add_argument("input", help="side-by-side video, or folder of left/right image pairs")
+    p.add_argument("--board", required=True,
+                   help="chessboard:COLSxROWS:SQUARE_M (inner corners) or charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT (squares)")
+    p.add_argument("--out", required=True, help="rig file to write (.yaml, .yml or .xml)")
+    p.add_argument("--max-frames", type=int, default=40, help="use at most N board views (default 40)")
+    p.add_argument("--min-views", type=int, default=6, help="refuse with fewer usable views (default 6)")
+    p.add_argument("--rational-model", action="store_true", help="8-coefficient distortion (strong wide-angle lenses)")
+    p.add_argument("--fix-intrinsics", action="store_true",
+                   help="keep each eye's own intrinsics in the pair solve (default: refine them jointly)")
+    p.add_argument("--zed-conf", metavar="PATH", help="also write the result as a ZED-style .conf (a folder gets SN0.conf)")
+    p.set_defaults(func=run_calibrate)
+
+    c = subparsers.add_parser(
+        "calib-check",
+        help="check a calibration against a video (row alignment of matched features)",
+        description="Match features between the eyes of a few frames and compare their row offsets raw and after "
+                    "rectification with --calib: says whether the calibration fits, whether the video is already "
+                    "rectified (do not rectify again) or raw. Exit status 0 when it fits, 1 otherwise.")
+    c.add_argument("input", help="side-by-side video or image, or folder of left/right image pairs")
+    c.add_argument("--calib", required=True,
+                   help="ZED .conf, rig YAML/XML, or fx,fy,cx,cy,baseline_m[,width,height] for rectified frames")
+    c.add_argument("--frames", type=int, default=8, help="frames spread over the video to check (default 8)")
+    c.add_argument("--board", help="also report the epipolar error of board corners (same spec as calibrate)")
+    c.add_argument("--out", help="write the check as JSON here")
+    c.set_defaults(func=run_calib_check)
+
+
+def _check_out_path(out: str):
+    from stereo_recon.errors import ConfigError
+
+    p = Path(out)
+    if p.suffix.lower() not in (".yaml", ".yml", ".xml"):
+        raise ConfigError(f"--out {out}: the rig file must end in .yaml, .yml or .xml")
+    if p.exists() and p.is_dir():
+        raise ConfigError(f"--out {out}: is a folder")
+    return p
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    import os
+    import tempfile
+
+    import cv2
+
+    from calib.boards import parse_board
+    from calib.calibrate import CalibConfig, calibrate_source, coverage_image
+    from calib.io import save_rig
+    from calib.zedconf import write_zed_conf
+    from stereo_recon.errors import ConfigError, InputError, StageError
+    from stereo_recon.manifest import Stopwatch, run_manifest, write_json_atomic
+
+    out = _check_out_path(args.out)
+    spec = parse_board(args.board)
+    if args.zed_conf and args.rational_model:
+        raise ConfigError("--zed-conf: a ZED .conf holds k1 k2 p1 p2 k3 only; drop --rational-model or --zed-conf")
+    if args.max_frames < 3:
+        raise ConfigError(f"--max-frames {args.max_frames}: need at least 3")
+    if args.min_views < 3:
+        raise ConfigError(f"--min-views {args.min_views}: need at least 3")
+    src = Path(args.input)
+    if not src.exists():
+        raise InputError(f"{src}: not found")
+    cfg = CalibConfig(max_frames=args.max_frames, min_views=min(args.min_views, args.max_frames),
+                      rational_model=args.rational_model, refine_intrinsics=not args.fix_intrinsics)
+    sw = Stopwatch()
+    with sw.stage("calibrate"):
+        result, col = calibrate_source(src, spec, cfg)
+    with sw.stage("coverage"):
+        png = coverage_image(result, spec, col.background)
+        ok, buf = cv2.imencode(".png", png)
+        if not ok:
+            raise StageError("calibrate", "could not encode the coverage image")
+    rep = result.report
+    report_path = out.with_name(out.stem + ".report.json")
+    cov_path = out.with_name(out.stem + ".coverage.png")
+    rep["files"] = {"rig": str(out), "report": str(report_path), "coverage": str(cov_path)}
+    rep["run"] = run_manifest("calibrate", {}, {"board": str(spec), "max_frames": cfg.max_frames,
+                                               "min_views": cfg.min_views, "rational_model": cfg.rational_model,
+                                               "refine_intrinsics": cfg.refine_intrinsics}, sw.timings_s)
+    # write everything to temporary names first, then move into place: no half-written results
+    made_dirs = [d for d in [out.parent, *out.parent.parents] if not d.exists()]  # removed again on failure
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    done = False
+    try:
+        t_rig = save_rig(result.rig, tmp_dir / out.name)
+        t_rep = write_json_atomic(tmp_dir / report_path.name, rep)
+        t_cov = tmp_dir / cov_path.name
+        t_cov.write_bytes(buf.tobytes())
+        t_zed = None
+        if args.zed_conf:
+            try:
+                t_zed = write_zed_conf(result.rig, tmp_dir / "zed.conf")
+            except InputError as err:  # name the user's path, not the temporary one
+                raise InputError(str(err).replace(str(tmp_dir / "zed.conf"), f"--zed-conf {args.zed_conf}")) from None
+        for t, final in ((t_rep, report_path), (t_cov, cov_path), (t_rig, out)):
+            os.replace(t, final)
+        if t_zed is not None:
+            zp = Path(args.zed_conf)
+            if zp.is_dir() or args.zed_conf.endswith(("/", "\\")) or zp.suffix.lower() != ".conf":
+                zp = zp / "SN0.conf"
+            zp.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(t_zed, zp)
+        done = True
+    finally:
+        for f in tmp_dir.iterdir():
+            f.unlink()
+        tmp_dir.rmdir()
+        for d in made_dirs if not done else ():
+            if d.is_dir() and not any(d.iterdir()):
+                d.rmdir()
+
+    rms, epi = rep["rms_px"], rep["epipolar_error_px"]
+    print(f"calibrated from {rep['views_used']} views ({rep['views_rejected']} rejected as outliers; "
+          f"board found in both eyes in {rep['found_in_both_eyes']} of {rep['looked_at']} looked at)")
+    print(f"RMS reprojection error: pair {rms['pair']:.3f} px, left {rms['left']:.3f} px, right {rms['right']:.3f} px")
+    print(f"rectified epipolar error: median {epi['median']:.3f} px, p95 {epi['p95']:.3f} px")
+    print(f"baseline {rep['baseline']:.5g} ({rep['baseline_units']}), rectified focal {rep['rectified']['focal_px']:.2f} px")
+    cov = rep["coverage_fraction"]
+    print(f"image coverage (8x6 cells with corners): left {100 * cov['left']:.0f}%, right {100 * cov['right']:.0f}%")
+    if min(cov.values()) < 0.5:
+        print("  hint: the board was seen in less than half of the image; views with the board near the edges and "
+              "corners determine the distortion better (see the coverage image)")
+    print("per view RMS px (pair / left / right):")
+    for v in rep["per_view"]:
+        if v.get("used"):
+            print(f"  {v['view']}: {v['rms_px']:.3f} / {v['left_rms_px']:.3f} / {v['right_rms_px']:.3f}")
+        elif "outlier" in v.get("reason", ""):
+            print(f"  {v['view']}: rejected, {v['reason']}")
+        else:
+            log.info("  %s: not used (%s)", v["view"], v.get("reason", ""))
+    print(f"wrote {out}, {report_path.name}, {cov_path.name}")
+    return 0
+
+
+def _sample_pairs(src: Path, n: int):
+    from calib.calibrate import IMAGE_SUFFIXES, _read_image, _split_sbs, iter_folder_pairs, iter_video_pairs, video_info
+
+    if src.is_file() and src.suffix.lower() in IMAGE_SUFFIXES:  # one side-by-side image
+        left, right = _split_sbs(_read_image(src), str(src))
+        return [(src.name, left, right)], (left.shape[1], left.shape[0])
+    if src.is_dir():
+        pairs = list(iter_folder_pairs(src, max_pairs=n))
+        return pairs, ((pairs[0][1].shape[1], pairs[0][1].shape[0]) if pairs else None)
+    count, size, _ = video_info(src)
+    if count <= 0:
+        count = n
+    idx = set(np.linspace(0, max(0, count - 1), n).round().astype(int).tolist())
+    pairs = [(f"frame {i}", l, r) for i, l, r in iter_video_pairs(src, indices=idx)]
+    return pairs, size
+
+
+def run_calib_check(args: argparse.Namespace) -> int:
+    from calib.boards import DetectConfig, parse_board
+    from calib.calibrate import PairView, _detect_pair, epipolar_errors
+    from calib.check import check_pairs
+    from calib.io import parse_calib_arg
+    from stereo_recon.errors import ConfigError, InputError
+    from stereo_recon.manifest import write_json_atomic
+
+    src = Path(args.input)
+    if not src.exists():
+        raise InputError(f"{src}: not found")
+    if args.frames < 1:
+        raise ConfigError(f"--frames {args.frames}: need at least 1")
+    spec = parse_board(args.board) if args.board else None
+    pairs, size = _sample_pairs(src, args.frames)
+    if not pairs:
+        raise InputError(f"{src}: no frames could be read")
+    rig = parse_calib_arg(args.calib, image_size=size)
+    result = check_pairs(pairs, rig)
+    if spec is not None:
+        views: list[PairView] = []
+        for name, left, right in pairs:
+            v, _ = _detect_pair(name, left, right, spec, DetectConfig())
+            if v is not None:
+                views.append(v)
+        if views:
+            e = epipolar_errors(rig, views, spec)
+            result["board_epipolar_error_px"] = {"views": len(views), "median": float(np.median(e)),
+                                                 "p95": float(np.percentile(e, 95))}
+        else:
+            result["board_epipolar_error_px"] = {"views": 0, "note": f"board not found in both eyes of {len(pairs)} frames"}
+    result["calib"] = args.calib
+    result["input"] = str(src)
+    raw, rec = result["raw"], result["rectified"]
+    print(f"checked {len(pairs)} frames of {src} ({rig.image_size[0]}x{rig.image_size[1]} per eye), "
+          f"{raw['matches']} feature matches")
+    print(f"row offset |dy|: raw median {raw['median_dy_px']:.2f} px / p95 {raw['p95_dy_px']:.2f} px; "
+          f"rectified median {rec['median_dy_px']:.2f} px / p95 {rec['p95_dy_px']:.2f} px")
+    if "board_epipolar_error_px" in result and result["board_epipolar_error_px"].get("views"):
+        b = result["board_epipolar_error_px"]
+        print(f"board corners after rectification: median {b['median']:.3f} px, p95 {b['p95']:.3f} px ({b['views']} views)")
+    print(f"{result['verdict']}: {result['message']}")
+    if args.out:
+        write_json_atomic(args.out, result)
+    return 0 if result["verdict"] == "ok" else 1
+
