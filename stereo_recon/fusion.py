@@ -1,0 +1,282 @@
+"""Fusion stage: metric depth maps + world-from-camera poses -> TSDF volume -> coloured point cloud / mesh.
+
+Uses Open3D's tensor ``VoxelBlockGrid`` (the legacy ``ScalableTSDFVolume`` returned no points
+with Open3D 0.20; see NOTES). The grid's hash map has a fixed capacity and Open3D crashes when
+an integration touches more blocks than it holds, so ``TSDFFusion`` counts the blocks each
+frame touches *before* integrating, grows the map when needed and refuses clearly (StageError)
+past a memory budget. Memory per block = block_resolution³ × 20 bytes (tsdf, weight, RGB float32).
+
+Frames: camera frame OpenCV (x right, y down, z forward); ``T_wc`` world-from-camera, metres.
+Open3D's ``extrinsic`` is camera-from-world, i.e. ``inv(T_wc)``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stereo_recon.errors import ConfigError, InputError, StageError
+
+log = logging.getLogger(__name__)
+
+_BYTES_PER_VOXEL = 4 * (1 + 1 + 3)  # tsdf, weight, colour (float32)
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Every parameter of the TSDF fusion."""
+
+    # Voxel edge (m). None: derived from the first frame, voxel_footprint_px pixel footprints at its median depth.
+    voxel_m: float | None = None
+    # Derived voxel = this many pixel footprints (median depth / focal) - finer than 1-2 px only adds noise.
+    voxel_footprint_px: float = 2.0
+    # Bounds for the derived voxel (m).
+    min_voxel_m: float = 0.002
+    max_voxel_m: float = 0.25
+    # SDF truncation distance in voxels (Open3D's default 8): thicker = more robust to depth noise, rounder edges.
+    trunc_voxels: float = 8.0
+    # Depth range integrated (m); farther depth is noisier (error grows with Z²) and costs blocks.
+    depth_min_m: float = 0.3
+    depth_max_m: float = 20.0
+    # Voxels per block edge. 8 rather than Open3D's 16: the truncation shell around a surface fills
+    # small blocks better, so fewer idle voxels are updated (measured on the synthetic HD720 orbit:
+    # 0.56 vs 0.98 CPU s per frame, half the memory).
+    block_resolution: int = 8
+    # Initial hash-map capacity in blocks; None = 4x the blocks the first frame touches.
+    block_count: int | None = None
+    # The grid grows up to this memory (GiB), then fusion stops with a StageError naming the remedy.
+    max_memory_gib: float = 6.0
+    # Extraction keeps voxels observed with at least this total weight (one frame = weight 1).
+    min_weight: float = 3.0
+    # Optional world-frame axis-aligned box (min xyz, max xyz) in m; depth outside it is not integrated.
+    roi_min_m: tuple[float, float, float] | None = None
+    roi_max_m: tuple[float, float, float] | None = None
+    # Open3D device ("CPU:0", or "CUDA:0" with a CUDA build of Open3D).
+    device: str = "CPU:0"
+
+    def __post_init__(self) -> None:
+        if self.voxel_m is not None and not self.voxel_m > 0:
+            raise ConfigError(f"voxel_m={self.voxel_m}: must be > 0")
+        if not 0 <= self.depth_min_m < self.depth_max_m:
+            raise ConfigError(f"depth range [{self.depth_min_m}, {self.depth_max_m}] m is empty")
+        if (self.roi_min_m is None) != (self.roi_max_m is None):
+            raise ConfigError("roi_min_m and roi_max_m must be given together")
+        if self.block_resolution not in (8, 16, 32):
+            raise ConfigError(f"block_resolution={self.block_resolution}: must be 8, 16 or 32")
+
+
+def voxel_size_from_depth(depth_m: np.ndarray, focal_px: float, footprint_px: float = 2.0,
+                          min_voxel_m: float = 0.002, max_voxel_m: float = 0.25) -> float:
+    """Voxel edge (m) = footprint_px × (median valid depth / focal_px), clipped to [min, max].
+
+    depth_m: (H, W) metres, NaN/0 invalid; focal_px: focal length of the depth camera in px.
+    """
+    z = np.asarray(depth_m)
+    z = z[np.isfinite(z) & (z > 0)]
+    if z.size == 0:
+        raise StageError("fusion", "cannot derive a voxel size: the first depth map has no valid pixel")
+    v = footprint_px * float(np.median(z)) / float(focal_px)
+    return float(min(max(v, min_voxel_m), max_voxel_m))
+
+
+def _check_pose(T_wc: np.ndarray) -> np.ndarray:
+    T = np.asarray(T_wc, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(f"fusion: pose must be a finite 4x4 matrix, got shape {T.shape}")
+    return T
+
+
+@dataclass
+class FusionStats:
+    """Counts for the run manifest."""
+
+    frames_integrated: int = 0
+    frames_skipped_empty: int = 0
+    pixels_integrated: int = 0
+    blocks_allocated: int = 0
+    capacity_blocks: int = 0
+    grow_events: int = 0
+    voxel_m: float | None = None
+    memory_gib: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+
+class TSDFFusion:
+    """Incremental TSDF fusion of coloured depth frames into an Open3D ``VoxelBlockGrid``.
+
+    Usage: ``f = TSDFFusion(cfg); f.integrate(bgr, depth_m, K, T_wc) ...; pts, rgb = f.extract_cloud()``.
+    """
+
+    def __init__(self, config: FusionConfig = FusionConfig()):
+        self.config = config
+        self.stats = FusionStats()
+        self._vbg = None
+        self._o3c = None
+        self.voxel_m: float | None = config.voxel_m
+
+    # -- grid management ----------------------------------------------------------------------
+    @property
+    def bytes_per_block(self) -> int:
+        return self.config.block_resolution ** 3 * _BYTES_PER_VOXEL
+
+    def _create(self, capacity: int) -> None:
+        import open3d as o3d
+        import open3d.core as o3c
+
+        self._o3c = o3c
+        cap_max = self._max_blocks()
+        capacity = int(min(max(capacity, 16), cap_max))
+        self._device = o3c.Device(self.config.device)
+        self._vbg = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"),
+            attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+            attr_channels=((1), (1), (3)),
+            voxel_size=float(self.voxel_m),
+            block_resolution=int(self.config.block_resolution),
+            block_count=capacity,
+            device=self._device,
+        )
+        self.stats.voxel_m = self.voxel_m
+        log.info("TSDF grid: voxel %.4f m, block capacity %d (%.2f GiB)", self.voxel_m, capacity,
+                 capacity * self.bytes_per_block / 2**30)
+
+    def _max_blocks(self) -> int:
+        return int(self.config.max_memory_gib * 2**30 // self.bytes_per_block)
+
+    def _ensure_capacity(self, n_new: int) -> None:
+        """Grow the hash map so that ``n_new`` more blocks fit (Open3D segfaults otherwise)."""
+        hm = self._vbg.hashmap()
+        size, cap = int(hm.size()), int(hm.capacity())
+        if size + n_new <= cap:
+            return
+        need = size + n_new
+        limit = self._max_blocks()
+        if need > limit:
+            raise StageError("fusion", f"the TSDF grid needs more than {limit} blocks ({self.config.max_memory_gib:g} GiB "
+                                       f"at {self.voxel_m * 1000:.1f} mm voxels); use a larger --voxel-m, a smaller "
+                                       "--depth-max-m or a region of interest")
+        new_cap = int(min(max(2 * cap, need + need // 4), limit))
+        hm.reserve(new_cap)
+        self.stats.grow_events += 1
+        log.info("TSDF grid grown to %d blocks (%.2f GiB)", new_cap, new_cap * self.bytes_per_block / 2**30)
+
+    # -- integration --------------------------------------------------------------------------
+    def _mask_depth(self, depth_m: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> np.ndarray:
+        c = self.config
+        z = np.array(depth_m, dtype=np.float32, copy=True)
+        bad = ~np.isfinite(z) | (z < c.depth_min_m) | (z > c.depth_max_m)
+        z[bad] = 0.0
+        if c.roi_min_m is not None:
+            h, w = z.shape
+            v, u = np.nonzero(z > 0)
+            zz = z[v, u].astype(np.float64)
+            x = (u - K[0, 2]) / K[0, 0] * zz
+            y = (v - K[1, 2]) / K[1, 1] * zz
+            pw = np.stack([x, y, zz], 1) @ T_wc[:3, :3].T + T_wc[:3, 3]
+            inside = np.all((pw >= np.asarray(c.roi_min_m)) & (pw <= np.asarray(c.roi_max_m)), axis=1)
+            z[v[~inside], u[~inside]] = 0.0
+        return z
+
+    def integrate(self, color_bgr: np.ndarray, depth_m: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> int:
+        """Fuse one frame; returns the number of blocks it touched (0 if it has no valid depth).
+
+        color_bgr: (H, W, 3) uint8 BGR image registered with the depth (the rectified left image).
+        depth_m: (H, W) float metres, NaN/0 invalid. K: (3, 3) pinhole intrinsics of that camera, px.
+        T_wc: (4, 4) world-from-camera pose, metres.
+        """
+        import open3d as o3d
+
+        K = np.asarray(K, dtype=np.float64)
+        T_wc = _check_pose(T_wc)
+        if depth_m.shape[:2] != color_bgr.shape[:2]:
+            raise InputError(f"fusion: depth {depth_m.shape[:2]} and colour {color_bgr.shape[:2]} differ in size")
+        z = self._mask_depth(depth_m, K, T_wc)
+        n_valid = int(np.count_nonzero(z))
+        if n_valid == 0:
+            self.stats.frames_skipped_empty += 1
+            return 0
+        if self._vbg is None:
+            if self.voxel_m is None:
+                self.voxel_m = voxel_size_from_depth(z[z > 0], K[0, 0], self.config.voxel_footprint_px,
+                                                     self.config.min_voxel_m, self.config.max_voxel_m)
+            self._create(self.config.block_count or 1024)
+        o3c = self._o3c
+        dev = self._device
+        depth_img = o3d.t.geometry.Image(o3c.Tensor(z, device=dev))
+        rgb = np.ascontiguousarray(color_bgr[..., ::-1], dtype=np.float32) / 255.0
+        color_img = o3d.t.geometry.Image(o3c.Tensor(rgb, device=dev))
+        intr = o3c.Tensor(K, dtype=o3c.float64)
+        extr = o3c.Tensor(np.linalg.inv(T_wc), dtype=o3c.float64)  # Open3D extrinsic = camera-from-world
+        depth_max = float(self.config.depth_max_m)
+        blocks = self._vbg.compute_unique_block_coordinates(depth_img, intr, extr, 1.0, depth_max,
+                                                            float(self.config.trunc_voxels))
+        n_blocks = int(blocks.shape[0])
+        if self.stats.frames_integrated == 0 and self.config.block_count is None:
+            self._ensure_capacity(4 * n_blocks)
+        self._ensure_capacity(n_blocks)  # upper bound of the new blocks this frame adds
+        self._vbg.integrate(blocks, depth_img, color_img, intr, intr, extr, 1.0, depth_max,
+                            float(self.config.trunc_voxels))
+        hm = self._vbg.hashmap()
+        self.stats.frames_integrated += 1
+        self.stats.pixels_integrated += n_valid
+        self.stats.blocks_allocated = int(hm.size())
+        self.stats.capacity_blocks = int(hm.capacity())
+        self.stats.memory_gib = self.stats.capacity_blocks * self.bytes_per_block / 2**30
+        return n_blocks
+
+    # -- extraction ---------------------------------------------------------------------------
+    def _require_grid(self) -> None:
+        if self._vbg is None:
+            raise StageError("fusion", "no frame with valid depth was integrated, so there is no surface to extract")
+
+    def extract_cloud(self, min_weight: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Surface points (N, 3) float64 m (world) and their colours (N, 3) float64 RGB in [0, 1]."""
+        self._require_grid()
+        wt = self.config.min_weight if min_weight is None else min_weight
+        pcd = self._vbg.extract_point_cloud(weight_threshold=float(wt))
+        if "positions" not in pcd.point or pcd.point.positions.shape[0] == 0:
+            return np.zeros((0, 3)), np.zeros((0, 3))
+        pts = pcd.point.positions.cpu().numpy().astype(np.float64)
+        cols = pcd.point.colors.cpu().numpy().astype(np.float64) if "colors" in pcd.point else np.zeros_like(pts)
+        return pts, np.clip(cols, 0.0, 1.0)
+
+    def extract_mesh(self, min_weight: float | None = None):
+        """Marching-cubes surface as a legacy ``open3d.geometry.TriangleMesh`` (vertex colours RGB [0, 1])."""
+        self._require_grid()
+        wt = self.config.min_weight if min_weight is None else min_weight
+        return self._vbg.extract_triangle_mesh(weight_threshold=float(wt)).to_legacy()
+
+
+def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None = None) -> Path:
+    """Write a binary PLY point cloud (points (N,3) m; colours (N,3) RGB in [0, 1] or uint8)."""
+    import open3d as o3d
+
+    path = Path(path)
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points_xyz, dtype=np.float64)))
+    if colors_rgb is not None and len(colors_rgb):
+        c = np.asarray(colors_rgb)
+        c = c / 255.0 if c.dtype == np.uint8 else c
+        pcd.colors = o3d.utility.Vector3dVector(np.asarray(c, dtype=np.float64))
+    if not o3d.io.write_point_cloud(str(path), pcd, write_ascii=False):
+        raise OSError(f"{path}: could not write point cloud")
+    return path
+
+
+def estimate_block_count(depth_m: np.ndarray, K: np.ndarray, voxel_m: float, block_resolution: int = 8,
+                         trunc_voxels: float = 8.0, frames: int = 1) -> int:
+    """Rough upper bound of blocks touched by ``frames`` views like this one (for planning memory).
+
+    Surface area seen by the frame ≈ sum over valid pixels of (Z / f)², times the truncation shell
+    thickness, divided by the block volume; views of an orbit overlap, so ``frames`` is scaled by
+    a square root rather than linearly.
+    """
+    z = np.asarray(depth_m, np.float64)
+    z = z[np.isfinite(z) & (z > 0)]
+    block_m = voxel_m * block_resolution
+    area = float(np.sum((z / K[0][0]) ** 2))
+    shell = 2 * trunc_voxels * voxel_m + block_m
+    return int(math.ceil(area * shell / block_m ** 3 * math.sqrt(max(frames, 1)))) + 1

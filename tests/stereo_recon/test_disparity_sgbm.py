@@ -1,0 +1,123 @@
+"""Disparity stage: analytic shifts, hole filling, depth conversion, and Middlebury 2014 bad-2.0 vs plain SGBM."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stereo_recon.disparity import (
+    DisparityConfig,
+    bad_pixel_rate,
+    depth_from_disparity,
+    disparity_map,
+    disparity_range_for_depth,
+    fill_holes_background,
+    load_middlebury_2014,
+    preset,
+)
+from stereo_recon.errors import ConfigError
+
+SCENES = ("Adirondack", "Motorcycle", "Piano", "Playtable")
+
+
+def _textured(rng, h=120, w=200):
+    import cv2
+
+    img = rng.integers(0, 256, (h // 4, w // 4), dtype=np.uint8)
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_CUBIC)
+
+
+def test_constant_shift_recovered_subpixel(rng):
+    # Right image = left shifted by a known sub-pixel disparity (linear interpolation of a smooth texture).
+    import cv2
+
+    d_true = 12.5
+    left = _textured(rng, 160, 320)
+    M = np.float32([[1, 0, -d_true], [0, 1, 0]])
+    right = cv2.warpAffine(left, M, (320, 160), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    for name in ("fast", "balanced", "quality"):
+        d = disparity_map(left, right, preset(name, num_disparities_px=32))
+        core = d[20:-20, 60:-20]
+        assert np.isfinite(core).mean() > 0.98, name
+        # SGBM's sub-pixel (parabola, 1/16 px steps) is biased towards integers by < 0.25 px on a smooth texture.
+        assert abs(np.nanmedian(core) - d_true) < 0.25, name
+
+
+def test_fill_holes_takes_background():
+    d = np.array([[5.0, np.nan, np.nan, 9.0, np.nan, 3.0, np.nan]], np.float32)
+    out = fill_holes_background(d)
+    np.testing.assert_allclose(out, [[5, 5, 5, 9, 3, 3, 3]])
+    limited = fill_holes_background(d, max_gap_px=1)
+    np.testing.assert_allclose(limited[0, [0, 3, 4, 5, 6]], [5, 9, 3, 3, 3])
+    assert np.isnan(limited[0, 1:3]).all()
+
+
+def test_depth_from_disparity_and_range():
+    d = np.array([[70.0, 7.0, 0.0, np.nan, 700.0]], np.float32)
+    z = depth_from_disparity(d, focal_px=700.0, baseline_m=0.12, min_depth_m=0.3, max_depth_m=20.0)
+    np.testing.assert_allclose(z[0, :2], [1.2, 12.0], rtol=1e-6)
+    assert np.isnan(z[0, 2:]).all()  # zero, NaN, and 0.12 m (< 0.3 m) are invalid
+    lo, num = disparity_range_for_depth(700.0, 0.12, 0.5, 20.0)
+    assert lo <= 700 * 0.12 / 20 and lo + num >= 700 * 0.12 / 0.5 and num % 16 == 0
+    lo, num = disparity_range_for_depth(700.0, 0.12, 0.01, 20.0, max_num_disparities=128)
+    assert num == 128
+
+
+def test_config_validation():
+    with pytest.raises(ConfigError):
+        DisparityConfig(block_size_px=4)
+    with pytest.raises(ConfigError):
+        preset("nope")
+    with pytest.raises(ConfigError, match="unknown"):
+        preset("fast", blocksize=3)
+    assert DisparityConfig(num_disparities_px=70).num_disparities_16 == 80
+
+
+@pytest.mark.realdata
+def test_middlebury_2014_better_than_plain_sgbm(shared_data):
+    """bad-2.0 (holes bad, non-occluded mask) on the 4 quarter-size scenes: ours vs plain SGBM in the same run.
+
+    NOTES measured plain SGBM at 19.0 % average; our 'balanced' preset measured 10.8 %. The bound
+    12 % is the issue's target; per scene ours must beat plain by >= 2 points (measured: 5-11).
+    """
+    ours, plain = [], []
+    for scene in SCENES:
+        pair = load_middlebury_2014(shared_data / "middlebury" / f"2014_{scene}_Q")
+        kw = dict(num_disparities_px=pair.ndisp)
+        e_plain = bad_pixel_rate(disparity_map(pair.left, pair.right, preset("plain", **kw)), pair.gt_disp_px,
+                                 pair.nonocc_mask)
+        e_ours = bad_pixel_rate(disparity_map(pair.left, pair.right, preset("balanced", **kw)), pair.gt_disp_px,
+                                pair.nonocc_mask)
+        assert e_ours["bad_pct"] < e_plain["bad_pct"] - 2.0, scene
+        assert e_ours["density_pct"] > 99.0  # holes filled (they count as bad)
+        ours.append(e_ours["bad_pct"])
+        plain.append(e_plain["bad_pct"])
+    # The plain reference reproduces the NOTES figure (19.0 %), so the comparison is the published one.
+    assert np.mean(plain) == pytest.approx(19.0, abs=0.3)
+    assert np.mean(ours) < np.mean(plain)
+    assert np.mean(ours) <= 12.0
+
+
+@pytest.mark.realdata
+def test_lr_check_and_wls_on_real_pair(shared_data):
+    """The right-matcher LR check removes mostly wrong pixels; WLS gives a dense map better than plain SGBM."""
+    pair = load_middlebury_2014(shared_data / "middlebury" / "2014_Adirondack_Q")
+    base = preset("balanced", num_disparities_px=pair.ndisp, fill_holes=False, median_px=0)
+    raw = disparity_map(pair.left, pair.right, base)
+    checked = disparity_map(pair.left, pair.right, preset("balanced", num_disparities_px=pair.ndisp, fill_holes=False,
+                                                          median_px=0, lr_check_px=1.0))
+    m = pair.nonocc_mask & np.isfinite(pair.gt_disp_px)
+
+    def wrong_among_valid(d):
+        v = m & np.isfinite(d)
+        return float((np.abs(d[v] - pair.gt_disp_px[v]) > 2).mean()), int(v.sum())
+
+    w_raw, n_raw = wrong_among_valid(raw)
+    w_chk, n_chk = wrong_among_valid(checked)
+    assert n_chk < n_raw  # the check removes pixels ...
+    assert w_chk < w_raw  # ... and the remaining ones are more often right
+    plain = bad_pixel_rate(disparity_map(pair.left, pair.right, preset("plain", num_disparities_px=pair.ndisp)),
+                           pair.gt_disp_px, pair.nonocc_mask)
+    wls = bad_pixel_rate(disparity_map(pair.left, pair.right, preset("wls", num_disparities_px=pair.ndisp)),
+                         pair.gt_disp_px, pair.nonocc_mask)
+    assert wls["density_pct"] > 99.0 and wls["bad_pct"] < plain["bad_pct"]

@@ -1,0 +1,38 @@
+"""End to end on the bundled sample: `stereo-recon run` with no flags measures the truck within 2 % of truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from stereo_recon.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+SAMPLE = REPO / "sample_data"
+
+
+@pytest.mark.slow
+def test_run_on_sample_data_matches_truth(tmp_path, monkeypatch, capsys):
+    truth = json.loads((SAMPLE / "truth.json").read_text())
+    monkeypatch.chdir(tmp_path)  # the default output folder is ./out/run
+    assert main(["run"]) == 0
+    out = tmp_path / "out" / "run"
+    for name in ("cloud.ply", "poses.txt", "run.json", "measurement.json", "report.html", "job.json"):
+        assert (out / name).is_file(), name
+    m = json.loads((out / "measurement.json").read_text())
+    for dim in ("length", "width", "height"):
+        err = abs(m[f"{dim}_m"] - truth[f"{dim}_m"]) / truth[f"{dim}_m"]
+        assert err < 0.02, f"{dim}: measured {m[f'{dim}_m']:.4f} m, truth {truth[f'{dim}_m']:.4f} m ({100 * err:.2f} %)"
+    # A model truck gets no legal verdict without a scale factor.
+    assert m["verdict"]["overall"] == "not-applicable"
+    printed = capsys.readouterr().out
+    assert "length" in printed and "report" in printed
+
+
+def test_run_with_missing_video_is_one_line_error(tmp_path, capsys):
+    rc = main(["run", str(tmp_path / "nope.avi"), "--calib", str(SAMPLE / "rig.yaml"), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert rc != 0 and "\n" not in err and "nope.avi" in err
+    assert not (tmp_path / "o").exists()
