@@ -1,0 +1,230 @@
+"""Solid procedural surface texture evaluated at every ray hit point (vectorised numpy + cv2.remap).
+
+A surface's colour is ``albedo * (1 + strength * noise(world point))`` (plus painted patterns), where
+``noise`` is band-limited multi-scale noise: two periodic 1/f^beta tiles (a fine 'grain' and coarse
+'stains') looked up by bilinear interpolation at the hit point's world coordinates, projected on
+the plane of the surface's dominant normal axis (tri-planar mapping). The texture is therefore
+fixed to the world: both eyes and every frame see the same surface pattern, as stereo needs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+_TILE = 1024  # texels per tile side (periodic)
+_ROW = 2048  # remap row length used to batch the 1-D point lists
+_TILE_SCALE = 4096.0  # noise tiles are int16 = round(4096 * value)
+
+
+@dataclass(frozen=True)
+class Material:
+    """Appearance of one surface type.
+
+    albedo_rgb: diffuse reflectance per channel, 0..1.
+    texture_strength: relative standard deviation of the multiplicative noise (0.02 = weakly
+        textured paint, 0.3 = gravel).
+    texel_m: size of one noise texel in metres; the finest pattern has a wavelength of ~4 texels
+        (choose ~1 pixel footprint at the working distance so it neither aliases nor vanishes).
+    stain_mix: weight of the coarse stain tile relative to the fine grain (0..1).
+    pattern: "noise" | "bays" (ground with painted parking lines) | "band" (a painted horizontal
+        stripe) | "checker" (a calibration chessboard in its own plane frame).
+    params: pattern parameters (see ``_apply_pattern``); values are floats or 3-vectors.
+    """
+
+    name: str
+    albedo_rgb: tuple[float, float, float]
+    texture_strength: float = 0.1
+    texel_m: float = 0.004
+    stain_mix: float = 0.5
+    pattern: str = "noise"
+    params: dict = field(default_factory=dict, compare=False)
+
+
+@lru_cache(maxsize=4)
+def noise_tile(beta: float, seed: int, size: int = _TILE) -> np.ndarray:
+    """Periodic, band-limited 1/f^beta noise tile (size x size int16 holding 4096 x a zero-mean, unit-std field).
+
+    Built in the Fourier domain, so it wraps seamlessly; frequencies above 1/4 cycle per texel are
+    removed so a bilinear lookup at ~1 texel per pixel does not alias.
+    """
+    rng = np.random.default_rng(seed)
+    f = np.fft.fftfreq(size)
+    fr = np.sqrt(f[:, None] ** 2 + f[None, :] ** 2)
+    fr[0, 0] = 1.0
+    amp = fr ** (-beta) * np.exp(-((fr / 0.22) ** 4))  # smooth low-pass near 1/4 cycle per texel
+    amp[0, 0] = 0.0
+    phase = rng.uniform(0, 2 * np.pi, (size, size))
+    spec = amp * np.exp(1j * phase)
+    img = np.real(np.fft.ifft2(spec))
+    img = (img - img.mean()) / img.std()
+    # Stored as int16 (1/4096 std per step): half the memory traffic of float32 in cv2.remap.
+    return np.clip(np.round(img * _TILE_SCALE), -32767, 32767).astype(np.int16)
+
+
+def _lookup(tile: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear, wrapping lookup of ``tile`` at texel coordinates (u, v) (1-D float32 arrays); returns (M,) float32 noise values."""
+    n = len(u)
+    if n == 0:
+        return np.zeros(0, np.float32)
+    s = float(tile.shape[0])
+    lim = 30000.0  # cv2.remap's fixed-point maps overflow beyond ~32k texels: wrap only then
+    if max(abs(float(u.min())), abs(float(u.max())), abs(float(v.min())), abs(float(v.max()))) > lim:
+        u = np.mod(u, s)
+        v = np.mod(v, s)
+    row = _ROW
+    rows = -(-n // row)
+    pad = rows * row - n
+    if pad:
+        u = np.pad(u, (0, pad))
+        v = np.pad(v, (0, pad))
+    out = cv2.remap(tile, u.astype(np.float32, copy=False).reshape(rows, row), v.astype(np.float32, copy=False).reshape(rows, row),
+                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+    return out.reshape(-1)[:n] * np.float32(1.0 / _TILE_SCALE)
+
+
+def planar_coords(points: np.ndarray, normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tri-planar 2-D coordinates (metres): the two world axes spanning the plane of the dominant normal axis.
+
+    points, normals: (M, 3) world frame. Returns (u, v), each (M,) float32.
+    """
+    a = np.abs(normals)
+    along_z = (a[:, 2] >= a[:, 0]) & (a[:, 2] >= a[:, 1])
+    along_x = ~along_z & (a[:, 0] >= a[:, 1])
+    u = np.where(along_z | ~along_x, points[:, 0], points[:, 1])
+    v = np.where(along_z, points[:, 1], points[:, 2])
+    # Offset the x-facing and y-facing planes so adjacent faces do not share one pattern.
+    u = u + np.where(along_x, 17.3, 0.0) + np.where(~along_z & ~along_x, 41.9, 0.0)
+    return u.astype(np.float32), v.astype(np.float32)
+
+
+def _smooth_square(x: np.ndarray, period: float, width: np.ndarray) -> np.ndarray:
+    """Anti-aliased square wave in [-1, 1]: +1 on the first half period, -1 on the second.
+
+    width: (M,) transition width in the same units (about one pixel footprint).
+    """
+    ph = np.mod(x, period) / period  # 0..1
+    d = np.minimum(ph, 1.0 - ph) * period  # distance to the edge at phase 0
+    d2 = np.abs(ph - 0.5) * period  # distance to the edge at phase 1/2
+    dist = np.minimum(d, d2)
+    sign = np.where(ph < 0.5, 1.0, -1.0)
+    return sign * np.clip(dist / np.maximum(width, 1e-9), 0.0, 1.0)
+
+
+def _texture_factor(mat: Material, mid: int, p: np.ndarray, n: np.ndarray | None, ref: np.ndarray) -> np.ndarray:
+    """Multiplicative noise factor (M,) float32 of one material at world points ``p`` (``n`` None: horizontal plane)."""
+    if mat.texture_strength <= 0:
+        return np.ones(len(p), np.float32)
+    if n is None:
+        u, v = p[:, 0], p[:, 1]
+    else:
+        u, v = planar_coords(p, n)
+    period = _TILE * mat.texel_m  # the texture repeats every period metres: shift by whole periods
+    # Whole periods near the reference point keep coordinates small without changing the texture.
+    off_u = np.float32(np.mod(97.1 * mid, period) - np.round(ref[0] / period) * period)
+    off_v = np.float32(np.mod(48.6 * mid, period) - np.round(ref[1] / period) * period)
+    inv = np.float32(1.0 / mat.texel_m)
+    tu = (u + off_u) * inv
+    tv = (v + off_v) * inv
+    g = _lookup(noise_tile(0.6, 11), tu, tv)
+    if mat.stain_mix > 0:
+        # Stains at 16x the grain scale, rotated so the two tile periods never line up.
+        su = (np.float32(0.8 / 16) * tu - np.float32(0.6 / 16) * tv)
+        sv = (np.float32(0.6 / 16) * tu + np.float32(0.8 / 16) * tv)
+        g = np.float32(1 - mat.stain_mix) * g + np.float32(mat.stain_mix) * _lookup(noise_tile(1.6, 23), su, sv)
+    tex = np.float32(mat.texture_strength) * g
+    tex += np.float32(1.0)
+    return np.clip(tex, 0.05, 3.0, out=tex)
+
+
+def shade_albedo(points: np.ndarray, normals: np.ndarray, material_ids: np.ndarray, materials: list[Material], footprint_m: np.ndarray,
+                 ref_m: np.ndarray | None = None) -> np.ndarray:
+    """Textured albedo (M, 3) float32 at hit points, channels in the order of ``Material.albedo_rgb``.
+
+    points: (M, 3) world hit points, metres; normals: (M, 3) unit-ish normals (world);
+    material_ids: (M,) indices into ``materials`` (-1 = no surface: left as zeros); footprint_m: (M,)
+    approximate pixel footprint on the surface (metres), used to anti-alias painted edges;
+    ref_m: a world point near the camera (keeps texture coordinates small; the result does not depend on it).
+    The most frequent material (the ground) is evaluated on the whole arrays (as a horizontal
+    plane when it is ``ground``), the rest on gathered subsets.
+    """
+    ref = np.zeros(3) if ref_m is None else np.asarray(ref_m, float)
+    m = len(points)
+    counts = np.bincount(material_ids + 1, minlength=len(materials) + 1)[1:]  # -1 (no surface) drops out
+    dom = int(np.argmax(counts)) if len(materials) else 0
+    if m == 0 or counts.sum() == 0:
+        return np.zeros((m, 3), np.float32)
+    out = np.empty((m, 3), np.float32)  # every row is written by the dominant material below
+    dmat = materials[dom]
+    tex = _texture_factor(dmat, dom, points, None if dmat.name == "ground" else normals, ref)
+    np.multiply(np.asarray(dmat.albedo_rgb, np.float32)[None, :], tex[:, None], out=out)
+    if dmat.pattern != "noise":
+        # Patterns of the dominant material on the whole arrays (no gather); others overwrite below.
+        out = _apply_pattern(dmat, out, points, footprint_m, tex)
+    rest = np.nonzero((material_ids != dom) & (material_ids >= 0))[0]
+    if len(rest) == 0:
+        return out
+    rid = material_ids[rest]
+    rp = points[rest]
+    rn = normals[rest]
+    rf = footprint_m[rest]
+    for mid in np.nonzero(counts)[0]:
+        if mid == dom:
+            continue
+        mat = materials[mid]
+        loc = np.nonzero(rid == mid)[0]
+        p = rp[loc]
+        t = _texture_factor(mat, int(mid), p, rn[loc], ref)
+        rgb = np.asarray(mat.albedo_rgb, np.float32)[None, :] * t[:, None]
+        if mat.pattern != "noise":
+            rgb = _apply_pattern(mat, rgb, p, rf[loc], t)
+        out[rest[loc]] = rgb
+    return out
+
+
+def _apply_pattern(mat: Material, rgb: np.ndarray, p: np.ndarray, fp: np.ndarray, tex: np.ndarray) -> np.ndarray:
+    """Painted patterns on top of the noise texture (see :class:`Material`)."""
+    pr = mat.params
+    if mat.pattern == "bays":
+        # Parking-bay lines: transverse lines every spacing_m along x between y_lo..y_hi, plus two
+        # long lines at y_lo and y_hi, all line_width_m wide, limited to |x| <= x_extent_m.
+        w = pr["line_width_m"]
+        s = pr["spacing_m"]
+        x, y = p[:, 0], p[:, 1]
+        inside_x = np.abs(x - pr.get("x0_m", 0.0)) <= pr["x_extent_m"]
+        dx = np.abs(np.mod(x - pr.get("x0_m", 0.0) + s / 2, s) - s / 2)
+        trans = (dx < w / 2) & (y >= pr["y_lo_m"]) & (y <= pr["y_hi_m"])
+        long_ = (np.minimum(np.abs(y - pr["y_lo_m"]), np.abs(y - pr["y_hi_m"])) < w / 2)
+        paint = (trans | long_) & inside_x
+        if paint.any():
+            col = np.asarray(pr.get("paint_rgb", (0.85, 0.83, 0.75)), np.float32)
+            rgb[paint] = col[None, :] * (1.0 + 0.3 * (tex[paint, None] - 1.0))
+        return rgb
+    if mat.pattern == "band":
+        z = p[:, 2]
+        m = (z >= pr["z_lo_m"]) & (z <= pr["z_hi_m"])
+        if m.any():
+            rgb[m] = np.asarray(pr["band_rgb"], np.float32)[None, :] * tex[m, None]
+        return rgb
+    if mat.pattern == "checker":
+        o = np.asarray(pr["origin"], float)
+        ua = np.asarray(pr["u_axis"], float)
+        va = np.asarray(pr["v_axis"], float)
+        q = p - o
+        u = q @ ua  # metres from the first inner corner's square origin along the board's columns
+        v = q @ va
+        sq = pr["square_m"]
+        nc, nr = pr["squares_x"], pr["squares_y"]
+        su = _smooth_square(u, 2 * sq, fp)
+        sv = _smooth_square(v, 2 * sq, fp)
+        val = 0.5 - 0.5 * su * sv  # 1 = white, 0 = black; the corner squares are black
+        inside = (u >= 0) & (u <= nc * sq) & (v >= 0) & (v <= nr * sq)
+        val = np.where(inside, val, 1.0)
+        black = np.asarray(pr.get("black_rgb", (0.04, 0.04, 0.04)), np.float32)
+        white = np.asarray(mat.albedo_rgb, np.float32)
+        col = black[None, :] + (white - black)[None, :] * val[:, None].astype(np.float32)
+        return col * np.clip(tex, 0.5, 1.5)[:, None]
+    return rgb
