@@ -21,6 +21,7 @@ import numpy as np
 from calib.rig import StereoRig
 from calib.zedconf import read_zed_conf, write_zed_conf  # noqa: F401  (re-exported: calib.io.write_zed_conf)
 from stereo_recon.errors import InputError
+from stereo_recon.manifest import set_default_mode
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +42,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
+        set_default_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -95,6 +97,7 @@ def _write_filestorage(path: Path, entries: dict[str, Any]) -> Path:
         for k, v in entries.items():
             _write_value(fs, k, v)
         fs.release()
+        set_default_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from stereo_recon.errors import ConfigError, StereoReconError
+from stereo_recon.manifest import set_default_mode
 
 log = logging.getLogger(__name__)
 
@@ -124,5 +125,6 @@ def write_summary_csv(path: str | os.PathLike, results: Sequence[dict]) -> Path:
         w.writeheader()
         for r in results:
             w.writerow(summary_row(r))
+    set_default_mode(tmp)
     os.replace(tmp, path)
     return path

@@ -65,6 +65,11 @@ def _umask() -> int:
     return mask
 
 
+def set_default_mode(path: str | os.PathLike) -> None:
+    """Give a file made by ``mkstemp`` (mode 0600) the permissions a plain ``open`` would."""
+    os.chmod(path, 0o666 & ~_umask())
+
+
 def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
     """Write JSON to ``path`` via a temporary file in the same folder and an atomic rename."""
     path = Path(path)
@@ -74,7 +79,7 @@ def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
         with os.fdopen(fd, "w") as f:
             json.dump(to_jsonable(data), f, indent=2, sort_keys=False)
             f.write("\n")
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file normal permissions
+        set_default_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
