@@ -1,0 +1,78 @@
+"""``stereo-recon measure CLOUD --out DIR``: truck dimensions and over-limit verdict from a point cloud."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from stereo_recon.errors import InputError
+
+# CLI flag -> MeasureConfig field (overrides of the main parameters).
+_OVERRIDES = {
+    "resolution": ("resolution_m", float, "point spacing in metres (default: measured median nearest-neighbour distance)"),
+    "eps": ("eps_m", float, "FoF friendship distance ε in metres (default: 3 x resolution)"),
+    "ground_band": ("ground_band_m", float, "ground band half-thickness ξ in metres (default: 2 x resolution)"),
+    "ground_thickness": ("ground_thickness_m", float, "ground removal thickness d_h in metres (default: 3.5 x resolution)"),
+    "min_cluster_points": ("min_cluster_points", int, "fewest points of a truck cluster (default 300)"),
+    "max_cluster_points": ("max_cluster_points", int, "most points of a truck cluster (default: no limit)"),
+    "min_length": ("min_length_m", float, "shortest truck-like cluster in metres (default: 50 x resolution)"),
+    "max_length": ("max_length_m", float, "longest truck-like cluster in metres (default: no limit)"),
+    "bootstrap": ("bootstrap", int, "bootstrap replicates for the uncertainties (default 30)"),
+    "seed": ("seed", int, "random seed (default 0)"),
+}
+
+
+def _vec3(text: str) -> tuple[float, float, float]:
+    try:
+        parts = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z numbers, got {text!r}") from None
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected three comma-separated numbers X,Y,Z, got {text!r}")
+    return tuple(parts)  # type: ignore[return-value]
+
+
+def register(subparsers) -> None:
+    """Add the ``measure`` subcommand."""
+    p = subparsers.add_parser(
+        "measure",
+        help="measure a truck's length, width and height in a point cloud",
+        description="Measure the truck in a point cloud (PLY, PCD, XYZ, PTS): ground plane, FoF clustering, "
+        "truck cluster, length/width by PCA + KDE, robust height; writes DIR/measurement.json, PNG plots and report.html.",
+    )
+    p.add_argument("cloud", help="point cloud file (.ply, .pcd, .xyz, .pts), metres")
+    p.add_argument("--out", required=True, help="output folder (written only when the measurement succeeds)")
+    p.add_argument("--regulation", default="cn-2016-62", help="regulation table: a built-in name or a .toml/.yaml/.json file (default cn-2016-62)")
+    p.add_argument("--vehicle-class", default=None, help="vehicle class in the regulation table (default: the table's default)")
+    p.add_argument("--scale", type=float, default=None, help="model-to-real scale factor (a scale model gets a legal verdict only with it)")
+    p.add_argument("--config", default=None, help="TOML/YAML file of measure parameters (unknown keys are rejected)")
+    p.add_argument("--up", type=_vec3, default=None, metavar="X,Y,Z", help="approximate up direction in the cloud's frame (default: estimated); write --up=X,Y,Z when X is negative")
+    p.add_argument("--centre", "--center", dest="centre", type=_vec3, default=None, metavar="X,Y,Z", help="a point near the truck (e.g. the orbit centre), to choose among several vehicles; --centre=X,Y,Z when X is negative")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots and the HTML report")
+    for flag, (_, typ, help_) in _OVERRIDES.items():
+        p.add_argument(f"--{flag.replace('_', '-')}", dest=flag, type=typ, default=None, help=help_)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Handler: measure, write the outputs, print a short summary."""
+    from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
+
+    cfg = load_config(args.config) if args.config else MeasureConfig()
+    over = {field: getattr(args, flag) for flag, (field, _, _) in _OVERRIDES.items()}
+    for k, v in over.items():
+        if v is not None and (v <= 0 and k not in ("seed",)):
+            raise InputError(f"--{k.replace('_m', '').replace('_', '-')} must be positive, got {v}")
+    cfg = cfg.with_overrides(**over)
+    out = Path(args.out)
+    res = measure_cloud_file(args.cloud, out, cfg, up_hint=args.up, centre_hint=args.centre, regulation=args.regulation,
+                             vehicle_class=args.vehicle_class, scale=args.scale, plots=not args.no_plots, html=not args.no_plots)
+    u = res["uncertainty_m"]
+    v = res.get("verdict") or {}
+    print(f"{args.cloud}: truck of {res['clusters']['n_truck_points']} points")
+    for d in ("length", "width", "height"):
+        vd = (v.get("dimensions") or {}).get(d) or {}
+        print(f"  {d:<6} {res[d + '_m']:8.3f} m ± {u[d]:.3f} m  [{res['rules'][d]}]  {vd.get('verdict', '')}")
+    print(f"  verdict: {v.get('overall')}{' — ' + v['reason'] if v.get('reason') else ''}")
+    print(f"  written: {out / 'measurement.json'}")
+    return 0

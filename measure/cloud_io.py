@@ -1,0 +1,82 @@
+"""Read point clouds (PLY, PCD, XYZ, PTS) through Open3D, with one-line errors for bad files."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from stereo_recon.errors import InputError
+
+SUPPORTED_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
+
+
+def read_cloud(path: str | os.PathLike, min_points: int = 100) -> np.ndarray:
+    """Points of a cloud file as an (N, 3) float64 array (metres, the file's frame).
+
+    Raises InputError naming the file for: missing, not a file, unsupported suffix, unreadable
+    or empty, non-finite coordinates (NaN/inf), fewer than ``min_points`` points.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file")
+    if not p.is_file():
+        raise InputError(f"{p}: not a file")
+    suffix = p.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
+        raise InputError(f"{p}: unsupported point-cloud format '{suffix}' (use one of {', '.join(SUPPORTED_SUFFIXES)})")
+    if not os.access(p, os.R_OK):
+        raise InputError(f"{p}: file is not readable")
+    if p.stat().st_size == 0:
+        raise InputError(f"{p}: file is empty")
+    if suffix == ".pts":
+        pts = _read_pts(p)
+    else:
+        import open3d as o3d
+
+        try:
+            pc = o3d.io.read_point_cloud(str(p), format="auto", remove_nan_points=False, remove_infinite_points=False)
+        except Exception as err:  # Open3D raises RuntimeError on corrupt files
+            raise InputError(f"{p}: cannot read point cloud ({' '.join(str(err).split())})") from None
+        pts = np.asarray(pc.points, dtype=np.float64)
+        if len(pts) == 0 and suffix in (".xyz", ".xyzn", ".xyzrgb"):
+            pts = _read_text_xyz(p)   # Open3D skips files with NaN tokens silently
+    if len(pts) == 0:
+        raise InputError(f"{p}: file has 0 points (empty or unreadable cloud)")
+    bad = ~np.isfinite(pts).all(axis=1)
+    if bad.any():
+        raise InputError(f"{p}: {int(bad.sum())} of {len(pts)} points have NaN or infinite coordinates")
+    if len(pts) < min_points:
+        raise InputError(f"{p}: only {len(pts)} points, at least {min_points} are needed to measure a truck")
+    return pts
+
+
+def _read_text_xyz(p: Path) -> np.ndarray:
+    try:
+        data = np.loadtxt(p, ndmin=2, usecols=(0, 1, 2), comments="#")
+    except (ValueError, IndexError, OSError):
+        return np.zeros((0, 3))
+    return data
+
+
+def _read_pts(p: Path) -> np.ndarray:
+    """Leica/CloudCompare PTS: optional first line with the point count, then 'x y z [...]' lines."""
+    try:
+        with open(p) as f:
+            first = f.readline().split()
+            skip = 1 if len(first) == 1 else 0
+        data = np.loadtxt(p, ndmin=2, usecols=(0, 1, 2), skiprows=skip, comments="#")
+    except (ValueError, IndexError, UnicodeDecodeError, OSError) as err:
+        raise InputError(f"{p}: cannot read PTS file ({' '.join(str(err).split())[:120]})") from None
+    return data.astype(np.float64)
+
+
+def write_cloud(path: str | os.PathLike, points: np.ndarray) -> Path:
+    """Write (N, 3) points as a binary PLY/PCD (by suffix) or text XYZ through Open3D."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
+    if not o3d.io.write_point_cloud(str(path), pc, write_ascii=Path(path).suffix.lower() in (".xyz", ".pts")):
+        raise InputError(f"{path}: could not write point cloud")
+    return Path(path)

@@ -1,0 +1,387 @@
+"""The measure stage: cloud -> ground -> FoF clusters -> truck -> length, width, height -> report.
+
+Every scale-dependent parameter defaults to a multiple of the cloud's resolution (its median
+nearest-neighbour spacing), so a 2 m model truck and an 18 m road train both work without flags;
+each can be pinned in metres instead (the ``*_m`` fields), from the CLI or a config file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import time
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stereo_recon.errors import ConfigError, InputError, StageError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MeasureConfig:
+    """Every parameter of the measure stage. ``*_res`` are multiples of the resolution; a ``*_m``
+    value, when set, overrides the matching multiple (metres)."""
+
+    resolution_m: float | None = None        # point spacing; None => measured (median NN distance)
+    resolution_sample: int = 20_000          # query points for the resolution estimate
+    # Ground (Algorithm 1): band half-thickness ξ around the density peak.
+    ground_band_res: float = 2.0
+    ground_band_m: float | None = None
+    ground_max_iter: int = 30
+    min_ground_fraction: float = 0.05        # a ground layer holds at least this share of all points
+    min_ground_contrast: float = 2.0         # ... and this many times the points of the layers beside it
+    # Ground removal thickness d_h (paper: 3–4 x resolution, 0.07 m at theirs).
+    ground_thickness_res: float = 3.5
+    ground_thickness_m: float | None = None
+    # FoF friendship distance ε (paper: 0.05 m at ~2 cm spacing).
+    eps_res: float = 3.0
+    eps_m: float | None = None
+    # Truck-like cluster filters (counts and circumscribed-cuboid size).
+    min_cluster_points: int = 300
+    max_cluster_points: int | None = None
+    min_length_res: float = 50.0
+    min_length_m: float | None = None
+    max_length_m: float | None = None
+    min_width_res: float = 10.0
+    min_height_res: float = 10.0
+    min_length_to_width: float = 1.3
+    max_length_to_width: float = 12.0
+    min_height_to_width: float = 0.25
+    max_height_to_width: float = 4.0
+    ambiguity_ratio: float = 0.8             # runner-up volume >= this x the best => refuse to guess
+    merge_gap_res: float = 15.0              # clusters in line with the truck within this gap join it (a cab across
+                                             # the gap to its box); 0 disables (the paper's single cluster)
+    # Dimension rules (see measure.dimensions).
+    peak_min_rel: float = 0.15
+    end_window: float = 0.04
+    extreme_fraction: float = 0.001
+    roof_min_fraction: float = 0.01
+    wall_min_share: float = 0.85
+    bootstrap: int = 30
+    seed: int = 0
+
+    def with_overrides(self, **kw: Any) -> "MeasureConfig":
+        """A copy with the given fields replaced (None values are ignored)."""
+        return dataclasses.replace(self, **{k: v for k, v in kw.items() if v is not None})
+
+
+def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
+    """A MeasureConfig from a mapping; unknown keys or wrongly typed values -> ConfigError."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a mapping of measure parameters, got {type(data).__name__}")
+    if "measure" in data and isinstance(data["measure"], dict) and len(data) == 1:
+        data = data["measure"]
+    known = {f.name: f for f in fields(MeasureConfig)}
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(known)})")
+    defaults = MeasureConfig()
+    kw = {}
+    for k, v in data.items():
+        d = getattr(defaults, k)
+        typ = known[k].type
+        if v is None:
+            if "None" not in str(typ):
+                raise ConfigError(f"{where}: {k} cannot be empty")
+            kw[k] = None
+            continue
+        want_int = "int" in str(typ) and "float" not in str(typ)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{where}: {k} must be a number, got {v!r}")
+        if want_int and not float(v).is_integer():
+            raise ConfigError(f"{where}: {k} must be an integer, got {v!r}")
+        v = int(v) if want_int else float(v)
+        if not np.isfinite(v) or (v < 0) or (v == 0 and k not in ("seed", "bootstrap") and not isinstance(d, int)):
+            raise ConfigError(f"{where}: {k} must be a positive number, got {v!r}")
+        kw[k] = v
+    return MeasureConfig(**kw)
+
+
+def load_config(path: str | os.PathLike) -> MeasureConfig:
+    """Read a TOML or YAML file of MeasureConfig fields (optionally under a ``[measure]`` table)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: config file not found")
+    try:
+        if p.suffix.lower() == ".toml":
+            import tomllib
+
+            data = tomllib.loads(p.read_text())
+        elif p.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(p.read_text()) or {}
+        else:
+            raise ConfigError(f"{p}: config must be .toml, .yaml or .yml")
+    except ConfigError:
+        raise
+    except Exception as err:
+        raise ConfigError(f"{p}: cannot parse config ({' '.join(str(err).split())[:160]})") from None
+    return config_from_dict(data, where=str(p))
+
+
+@dataclass
+class Measurement:
+    """Result of :func:`measure_points` (metres; frames as documented per field)."""
+
+    length_m: float
+    width_m: float
+    height_m: float
+    uncertainty_m: dict
+    rules: dict
+    bandwidths_m: dict
+    ground: dict                 # normal (input frame, up), offset, inlier rate, rms, iterations...
+    clusters: dict               # counts, rejections per filter, candidates, chosen label
+    parameters: dict             # every parameter actually used (resolved to metres)
+    timings_s: dict
+    n_points: int
+    truck_xyz_ground: np.ndarray = field(repr=False)   # truck points in the ground frame (z = height)
+    frame_rotation: np.ndarray = field(repr=False)     # R: ground frame = R @ p + t  (Eqs. 5-6)
+    frame_translation: np.ndarray = field(repr=False)
+    details: dict = field(repr=False, default_factory=dict)   # densities, edges, rectangle, axes
+
+    def summary(self) -> dict:
+        """The JSON-ready part (no per-point arrays)."""
+        from stereo_recon.manifest import to_jsonable
+
+        return to_jsonable({
+            "length_m": self.length_m,
+            "width_m": self.width_m,
+            "height_m": self.height_m,
+            "uncertainty_m": self.uncertainty_m,
+            "rules": self.rules,
+            "bandwidths_m": self.bandwidths_m,
+            "ground_plane": self.ground,
+            "clusters": self.clusters,
+            "parameters": self.parameters,
+            "timings_s": self.timings_s,
+            "n_points": self.n_points,
+            "n_truck_points": int(len(self.truck_xyz_ground)),
+            "frame": {"rotation": self.frame_rotation, "translation_m": self.frame_translation,
+                      "note": "ground frame = rotation @ input + translation; z is height above the fitted ground (Eqs. 5-6)"},
+            "axes": {k: self.details[k] for k in ("axes_xy", "origin_xy_m", "heading_refinement_deg", "edges_m", "rear_end", "rectangle_xy_m") if k in self.details},
+            "bandwidth_rules": self.details.get("bandwidth_rules"),
+            "warnings": self.details.get("warnings", []),
+            "roof_support": self.details.get("roof_support"),
+            "bootstrap_std_m": self.details.get("bootstrap_std_m"),
+        })
+
+
+def _parse_vec(v, name: str) -> np.ndarray | None:
+    if v is None:
+        return None
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.shape != (3,) or not np.isfinite(a).all():
+        raise InputError(f"{name} must be three finite numbers, got {v!r}")
+    return a
+
+
+def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig(), up_hint: np.ndarray | None = None,
+                   centre_hint: np.ndarray | None = None, rng=0, source: str = "cloud") -> Measurement:
+    """Measure the truck in a point cloud.
+
+    points_xyz: (N, 3) metres, any frame. up_hint: approximate ground normal pointing up
+    (input frame), e.g. from the camera trajectory; None => estimated from the cloud.
+    centre_hint: a point near the truck (input frame), e.g. the orbit centre; used to pick
+    the truck among several candidates. rng: seed for subsampling and bootstrap.
+    Raises InputError (bad points), StageError (no ground / no truck / ambiguous trucks).
+    """
+    from scipy.spatial import cKDTree
+
+    from measure.dimensions import DimensionConfig, measure_dimensions
+    from measure.fof import fof_clusters
+    from measure.ground import ground_plane
+    from measure.resolution import point_resolution
+    from measure.truck import TruckFilter, ground_frame, merge_truck_parts, select_truck
+
+    cfg = config
+    timings: dict[str, float] = {}
+    t_all = time.perf_counter()
+    p = np.asarray(points_xyz, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"{source}: points must be an (N, 3) array, got shape {p.shape}")
+    if not np.isfinite(p).all():
+        raise InputError(f"{source}: points contain NaN or infinite coordinates")
+    if len(p) < max(100, cfg.min_cluster_points):
+        raise InputError(f"{source}: only {len(p)} points, at least {max(100, cfg.min_cluster_points)} are needed")
+    up = _parse_vec(up_hint, "up hint")
+    centre = _parse_vec(centre_hint, "centre hint")
+
+    t = time.perf_counter()
+    if cfg.resolution_m is not None:
+        res = float(cfg.resolution_m)
+    else:
+        res = point_resolution(p, cfg.resolution_sample, rng=cfg.seed if rng is None else rng,
+                               tree=cKDTree(p, balanced_tree=False, compact_nodes=False))
+    if not res > 0:
+        raise InputError(f"{source}: most points are exact duplicates; cannot measure the point spacing")
+    timings["resolution"] = time.perf_counter() - t
+    xi = cfg.ground_band_m or cfg.ground_band_res * res
+    d_h = cfg.ground_thickness_m or cfg.ground_thickness_res * res
+    eps = cfg.eps_m or cfg.eps_res * res
+
+    t = time.perf_counter()
+    try:
+        plane = ground_plane(p, xi, up_hint=up, max_iter=cfg.ground_max_iter, rng=rng)
+    except ValueError as err:
+        raise StageError("measure", f"{source}: no ground plane ({err})") from None
+    if plane.inlier_rate < cfg.min_ground_fraction:
+        raise StageError("measure", f"{source}: no ground plane (the densest planar layer holds only {100 * plane.inlier_rate:.1f}% of the points, "
+                                    f"< {100 * cfg.min_ground_fraction:.0f}%)")
+    # A ground is a dense layer: it must hold clearly more points than the layers of the same
+    # thickness just above and below it (a blob or a volume has no such layer).
+    hgt = plane.height(p)
+    n_band = int((np.abs(hgt) <= xi).sum())
+    n_next = max(int(((hgt > xi) & (hgt <= 3 * xi)).sum()), int(((hgt < -xi) & (hgt >= -3 * xi)).sum()), 1)
+    contrast = n_band / n_next
+    if contrast < cfg.min_ground_contrast:
+        raise StageError("measure", f"{source}: no ground plane (the densest layer holds {n_band} points, only {contrast:.2f} x its neighbouring layers; "
+                                    f"a ground needs >= {cfg.min_ground_contrast:g} x)")
+    keep = hgt > d_h   # remove_ground(p, plane, d_h), reusing the heights
+    timings["ground"] = time.perf_counter() - t
+    above = p[keep]
+    if len(above) < cfg.min_cluster_points:
+        raise StageError("measure", f"{source}: no truck-like cluster (only {len(above)} points above the ground layer of {d_h:.3g} m)")
+
+    R = ground_frame(plane.normal)
+    tvec = np.array([0.0, 0.0, plane.offset])
+    xyz_g = above @ R.T + tvec     # Eqs. 5-6
+
+    t = time.perf_counter()
+    labels = fof_clusters(above, eps)
+    timings["fof"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    filt = TruckFilter(
+        min_points=cfg.min_cluster_points, max_points=cfg.max_cluster_points,
+        min_length_m=cfg.min_length_m or cfg.min_length_res * res, max_length_m=cfg.max_length_m,
+        min_width_m=cfg.min_width_res * res, min_height_m=cfg.min_height_res * res,
+        min_length_to_width=cfg.min_length_to_width, max_length_to_width=cfg.max_length_to_width,
+        min_height_to_width=cfg.min_height_to_width, max_height_to_width=cfg.max_height_to_width,
+        ambiguity_ratio=cfg.ambiguity_ratio,
+    )
+    centre_xy = None if centre is None else (R @ centre + tvec)[:2]
+    chosen, cstats = select_truck(xyz_g, labels, filt, centre_xy, source=source)
+    if cfg.merge_gap_res > 0:
+        parts = merge_truck_parts(xyz_g, labels, chosen, cfg.merge_gap_res * res, max(cfg.min_cluster_points // 5, 20))
+    else:
+        parts = [chosen]
+    cstats["merged_labels"] = parts
+    truck = xyz_g[np.isin(labels, parts)]
+    timings["truck"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
+                           roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap)
+    dims = measure_dimensions(truck, res, noise_m=plane.rms_m, config=dcfg, rng=rng)
+    timings["dimensions"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_all
+
+    params = dataclasses.asdict(cfg)
+    params["resolved"] = {"resolution_m": res, "ground_band_m": xi, "ground_thickness_m": d_h, "eps_m": eps,
+                          "min_length_m": filt.min_length_m, "min_width_m": filt.min_width_m, "min_height_m": filt.min_height_m,
+                          "resolution_measured": cfg.resolution_m is None}
+    params["up_hint"] = up
+    params["centre_hint"] = centre
+    ground = {"normal": plane.normal, "offset_m": plane.offset, "equation": "normal . p + offset_m = 0 (normal points up)",
+              "inlier_rate": plane.inlier_rate, "n_inliers": plane.n_inliers, "rms_m": plane.rms_m, "iterations": plane.iterations,
+              "initial_normal": plane.initial_normal, "initial_normal_source": plane.initial_normal_source,
+              "n_above_ground": int(keep.sum()), "layer_contrast": contrast, "n_removed": int((~keep).sum())}
+    cstats["n_truck_points"] = int(len(truck))
+    return Measurement(
+        length_m=float(dims["length_m"]), width_m=float(dims["width_m"]), height_m=float(dims["height_m"]),
+        uncertainty_m=dims["uncertainty_m"], rules=dims["rules"], bandwidths_m=dims["bandwidths_m"],
+        ground=ground, clusters=cstats, parameters=params, timings_s=timings, n_points=len(p),
+        truck_xyz_ground=truck, frame_rotation=R, frame_translation=tvec, details=dims,
+    )
+
+
+def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfig(), up_hint=None, centre_hint=None,
+                       regulation: str = "cn-2016-62", vehicle_class: str | None = None, scale: float | None = None,
+                       plots: bool = True, html: bool = True, k_sigma: float = 2.0) -> dict:
+    """Measure the truck in a cloud file; write ``out_dir/measurement.json`` (+ PNG plots, report.html).
+
+    Output is written into a staging folder and moved into ``out_dir`` only when everything
+    succeeded, so a failure leaves no half-written folder. Returns the JSON dict.
+
+    measurement.json: ``length_m``, ``width_m``, ``height_m`` (metres, real size of what was
+    measured, no scale applied), ``uncertainty_m`` {length, width, height} (one standard
+    uncertainty), ``verdict`` (measure.limits.over_limit_verdict), ``rules`` (which rule gave each
+    number), ``bandwidths_m`` and ``bandwidth_rules`` (Eq. 8), ``bootstrap_std_m``, ``warnings``,
+    ``ground_plane`` (normal, offset, inlier rate, rms, iterations, initial normal and its source),
+    ``clusters`` (counts, rejections per filter with an example, candidates, selection rule,
+    merged labels), ``parameters`` (every MeasureConfig field plus the resolved metres),
+    ``timings_s``, ``frame`` (Eqs. 5-6 rotation/translation), ``axes``, ``input`` {path, sha256,
+    n_points}, ``regulation``, ``versions``, ``plots``. Plots: width_density.png,
+    length_density.png (paper Figs. 5-6), top_view.png, side_view.png; report.html.
+    """
+    from measure.cloud_io import read_cloud
+    from measure.limits import load_regulation, over_limit_verdict
+    from stereo_recon.manifest import library_versions, sha256_file, staged_output_dir, to_jsonable, write_json_atomic
+
+    cloud_path = Path(cloud_path)
+    t0 = time.perf_counter()
+    reg = load_regulation(regulation)   # fail early on a bad table, before any work
+    pts = read_cloud(cloud_path, min_points=max(100, config.min_cluster_points))
+    t_read = time.perf_counter() - t0
+    m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre_hint, rng=config.seed, source=str(cloud_path))
+    sha = sha256_file(cloud_path)
+    verdict = over_limit_verdict({"length": m.length_m, "width": m.width_m, "height": m.height_m}, m.uncertainty_m, reg,
+                                 vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
+    result = {
+        "length_m": m.length_m, "width_m": m.width_m, "height_m": m.height_m, "uncertainty_m": m.uncertainty_m,
+        "verdict": verdict,
+        **{k: v for k, v in m.summary().items() if k not in ("length_m", "width_m", "height_m", "uncertainty_m")},
+        "input": {"path": str(cloud_path.resolve()), "sha256": sha, "n_points": len(pts)},
+        "input_path": str(cloud_path), "input_sha256": sha,
+        "regulation": {"name": regulation, "vehicle_class": vehicle_class, "scale": scale, "k_sigma": k_sigma},
+        "versions": library_versions(),
+        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "stage": "measure",
+    }
+    result["timings_s"] = dict(result["timings_s"], read=t_read)
+    with staged_output_dir(out_dir) as tmp:
+        images: dict[str, Path] = {}
+        if plots:
+            t = time.perf_counter()
+            images = write_plots(m, tmp)
+            result["timings_s"]["plots"] = time.perf_counter() - t
+        result["plots"] = {k: v.name for k, v in images.items()}
+        write_json_atomic(tmp / "measurement.json", result)
+        if html:
+            try:
+                from measure.report_html import render_report_html
+            except ImportError:
+                render_report_html = None
+            if render_report_html is not None:
+                render_report_html(to_jsonable(result), images, tmp / "report.html")
+    return to_jsonable(result)
+
+
+def write_plots(m: Measurement, folder: Path) -> dict[str, Path]:
+    """PNG plots of a measurement (densities like the paper's Figs. 5-6, top and side views)."""
+    from measure import plots
+
+    d = m.details
+    out: dict[str, Path] = {}
+    xy = m.truck_xyz_ground[:, :2] - d["origin_xy_m"]
+    u1, u2 = d["axes_xy"]["length"], d["axes_xy"]["width"]
+    a, b = xy @ u1, xy @ u2
+    for name, samples in (("width", b), ("length", a)):
+        dens = d["densities"][name]
+        e0, e1 = d["edges_m"][name]
+        out[f"{name}_density"] = plots.plot_density(
+            folder / f"{name}_density.png", name, dens["grid_m"], dens["density"], samples_m=samples,
+            peaks_m=(e0, e1), markers_m={"start": e0, "end": e1},
+            title=f"{name}: {getattr(m, name + '_m'):.3f} m ({m.rules[name]}, h = {m.bandwidths_m[name]:.3g} m)")
+    # Top and side views in the truck's own axes (length along x).
+    rect = np.array([[s, t] for s, t in ((d["edges_m"]["length"][0], d["edges_m"]["width"][0]), (d["edges_m"]["length"][1], d["edges_m"]["width"][0]),
+                                          (d["edges_m"]["length"][1], d["edges_m"]["width"][1]), (d["edges_m"]["length"][0], d["edges_m"]["width"][1]))])
+    out["top_view"] = plots.plot_top_view(folder / "top_view.png", np.stack([a, b], axis=1), rect, m.length_m, m.width_m)
+    out["side_view"] = plots.plot_side_view(folder / "side_view.png", np.stack([a, m.truck_xyz_ground[:, 2]], axis=1), m.height_m)
+    return out

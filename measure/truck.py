@@ -1,0 +1,208 @@
+"""Pick the truck among the FoF clusters: point-count and circumscribed-cuboid filters, then a rule.
+
+Filters (paper Section 3.1.2): a cluster is truck-like when its point count is within
+[min_points, max_points] and its circumscribed cuboid (ground-aligned, oriented by PCA of the
+footprint) has length, width and height within the configured ranges and a plausible shape
+(length/width and height/width ratios).
+
+Selection rule when several clusters pass:
+1. with a centre hint (e.g. the drone's orbit centre): the cluster whose footprint rectangle is
+   nearest to the hint (distance 0 when the hint lies inside it); two clusters both containing
+   the hint are ambiguous;
+2. without a hint: the largest cuboid volume; when the runner-up reaches ``ambiguity_ratio`` of
+   it, the two are equally plausible and the stage refuses to guess.
+
+Then clusters continuing the chosen one along its length within a small gap (a cab whose link to
+the box was not reconstructed) join it (:func:`merge_truck_parts`); vehicles beside the truck, or
+in line beyond the gap, never do.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereo_recon.errors import StageError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TruckFilter:
+    """Ranges for truck-like clusters; lengths in metres (already scaled to the cloud)."""
+
+    min_points: int
+    max_points: int | None
+    min_length_m: float
+    max_length_m: float | None
+    min_width_m: float
+    min_height_m: float
+    min_length_to_width: float = 1.3
+    max_length_to_width: float = 12.0
+    min_height_to_width: float = 0.25
+    max_height_to_width: float = 4.0
+    ambiguity_ratio: float = 0.8
+
+
+def ground_frame(normal: np.ndarray) -> np.ndarray:
+    """A rotation (3, 3) whose third row is the ground normal (Eqs. 5–6: rows are e'_1, e'_2, e'_3)."""
+    n = np.asarray(normal, dtype=np.float64)
+    a = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = np.cross(n, a)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    return np.stack([e1, e2, n])
+
+
+def cuboid(xy: np.ndarray, z: np.ndarray) -> dict:
+    """Circumscribed cuboid of a cluster in the ground frame: PCA footprint axes, full extents."""
+    c = xy.mean(axis=0)
+    q = xy - c
+    _, _, vt = np.linalg.svd(q[:: max(1, len(q) // 20000)], full_matrices=False)
+    u1 = vt[0]
+    u2 = np.array([-u1[1], u1[0]])
+    a = q @ u1
+    b = q @ u2
+    length = float(a.max() - a.min())
+    width = float(b.max() - b.min())
+    height = float(z.max())
+    centre = c + u1 * (a.max() + a.min()) / 2 + u2 * (b.max() + b.min()) / 2
+    return {"length_m": length, "width_m": width, "height_m": height, "centre_xy_m": centre, "axis_xy": u1,
+            "volume_m3": length * width * max(height, 0.0), "n_points": int(len(z))}
+
+
+def _footprint_distance(box: dict, pt: np.ndarray) -> float:
+    u1 = box["axis_xy"]
+    u2 = np.array([-u1[1], u1[0]])
+    d = pt - box["centre_xy_m"]
+    da = max(abs(d @ u1) - box["length_m"] / 2, 0.0)
+    db = max(abs(d @ u2) - box["width_m"] / 2, 0.0)
+    return float(np.hypot(da, db))
+
+
+def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, gap_m: float, min_points: int,
+                      min_width_overlap: float = 0.6) -> list[int]:
+    """Labels of clusters that continue the chosen truck along its length (a cab across the gap
+    to its box, when nothing joins them in the cloud).
+
+    A cluster joins when it has at least ``min_points`` points, its width range overlaps the
+    truck's by at least ``min_width_overlap`` of the narrower one, its length range is within
+    ``gap_m`` of the truck's, and it is no taller than 1.3 x the truck. A vehicle parked beside
+    the truck shares no width range and never joins; one parked in line farther than ``gap_m``
+    does not either. Repeats until nothing more joins. Returns the sorted labels, chosen included.
+    """
+    n_lab = int(labels.max()) + 1 if len(labels) else 0
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(-1, n_lab + 1))
+    members = {chosen}
+    pts = xyz_ground[labels == chosen]
+    box = cuboid(pts[:, :2], pts[:, 2])
+    u1 = box["axis_xy"]
+    u2 = np.array([-u1[1], u1[0]])
+    rng_of = {}
+    for lab in range(n_lab):
+        if lab == chosen or bounds[lab + 2] - bounds[lab + 1] < min_points:
+            continue
+        q = xyz_ground[order[bounds[lab + 1] : bounds[lab + 2]]]
+        a, b = q[:, :2] @ u1, q[:, :2] @ u2
+        rng_of[lab] = (a.min(), a.max(), b.min(), b.max(), q[:, 2].max())
+    a, b = pts[:, :2] @ u1, pts[:, :2] @ u2
+    A0, A1, B0, B1, H = a.min(), a.max(), b.min(), b.max(), pts[:, 2].max()
+    changed = True
+    while changed:
+        changed = False
+        for lab, (a0, a1, b0, b1, h) in list(rng_of.items()):
+            overlap = min(b1, B1) - max(b0, B0)
+            narrow = max(min(b1 - b0, B1 - B0), 1e-12)
+            gap = max(a0 - A1, A0 - a1)
+            if overlap / narrow >= min_width_overlap and gap <= gap_m and h <= 1.3 * H:
+                members.add(lab)
+                A0, A1, B0, B1, H = min(A0, a0), max(A1, a1), min(B0, b0), max(B1, b1), max(H, h)
+                del rng_of[lab]
+                changed = True
+    return sorted(members)
+
+
+def select_truck(xyz_ground: np.ndarray, labels: np.ndarray, filt: TruckFilter, centre_hint_xy: np.ndarray | None = None,
+                 source: str = "cloud") -> tuple[int, dict]:
+    """Choose the truck cluster.
+
+    xyz_ground: (N, 3) non-ground points in the ground frame (z = height above ground, metres).
+    labels: (N,) FoF labels (-1 noise). centre_hint_xy: (2,) hint in the same frame, or None.
+    Returns (label, stats) where stats lists every cluster considered and why each was rejected.
+    Raises StageError when no cluster passes or two are equally plausible.
+    """
+    n_lab = int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0
+    counts = np.bincount(labels[labels >= 0], minlength=n_lab)
+    rejected: dict[str, int] = {}
+    examples: dict[str, str] = {}
+    candidates: list[tuple[int, dict]] = []
+    order = np.argsort(labels, kind="stable")
+    sl = labels[order]
+    bounds = np.searchsorted(sl, np.arange(-1, n_lab + 1))
+
+    def reject(rule: str, lab: int, text: str) -> None:
+        rejected[rule] = rejected.get(rule, 0) + 1
+        if rule not in examples:
+            examples[rule] = f"cluster {lab} ({counts[lab]} points{', ' + text if text else ''})"
+
+    for lab in range(n_lab):
+        cnt = int(counts[lab])
+        if cnt < filt.min_points:
+            reject("min_points", lab, f"< {filt.min_points}")
+            continue
+        if filt.max_points is not None and cnt > filt.max_points:
+            reject("max_points", lab, f"> {filt.max_points}")
+            continue
+        idx = order[bounds[lab + 1] : bounds[lab + 2]]
+        pts = xyz_ground[idx]
+        box = cuboid(pts[:, :2], pts[:, 2])
+        L, W, H = box["length_m"], box["width_m"], box["height_m"]
+        dims = f"{L:.3g} x {W:.3g} x {H:.3g} m"
+        if L < filt.min_length_m:
+            reject("min_length", lab, f"{dims}, length < {filt.min_length_m:.3g} m")
+        elif filt.max_length_m is not None and L > filt.max_length_m:
+            reject("max_length", lab, f"{dims}, length > {filt.max_length_m:.3g} m")
+        elif W < filt.min_width_m:
+            reject("min_width", lab, f"{dims}, width < {filt.min_width_m:.3g} m")
+        elif H < filt.min_height_m:
+            reject("min_height", lab, f"{dims}, height < {filt.min_height_m:.3g} m")
+        elif not (filt.min_length_to_width <= L / max(W, 1e-12) <= filt.max_length_to_width):
+            reject("length_to_width", lab, f"{dims}, length/width {L / max(W, 1e-12):.2f} outside [{filt.min_length_to_width}, {filt.max_length_to_width}]")
+        elif not (filt.min_height_to_width <= H / max(W, 1e-12) <= filt.max_height_to_width):
+            reject("height_to_width", lab, f"{dims}, height/width {H / max(W, 1e-12):.2f} outside [{filt.min_height_to_width}, {filt.max_height_to_width}]")
+        else:
+            candidates.append((lab, box))
+    stats = {
+        "n_clusters": n_lab,
+        "n_noise_points": int((labels < 0).sum()),
+        "largest_cluster_points": int(counts.max()) if n_lab else 0,
+        "rejected_by_filter": rejected,
+        "rejected_examples": examples,
+        "candidates": [{"label": lab, **{k: v for k, v in b.items() if k != "axis_xy"}} for lab, b in candidates],
+    }
+    if not candidates:
+        why = "; ".join(f"{k}: {v} rejected (e.g. {examples[k]})" for k, v in rejected.items()) or "no clusters at all"
+        raise StageError("measure", f"{source}: no truck-like cluster ({n_lab} clusters; {why})")
+    if centre_hint_xy is not None:
+        dist = [(_footprint_distance(b, np.asarray(centre_hint_xy)), lab, b) for lab, b in candidates]
+        dist.sort(key=lambda t: t[0])
+        if len(dist) > 1 and dist[0][0] == 0.0 and dist[1][0] == 0.0:
+            raise StageError("measure", f"{source}: two equally plausible trucks both cover the centre hint (clusters {dist[0][1]} and {dist[1][1]})")
+        chosen = dist[0][1]
+        stats["selection_rule"] = "nearest_to_centre_hint"
+    else:
+        candidates.sort(key=lambda t: -t[1]["volume_m3"])
+        if len(candidates) > 1 and candidates[1][1]["volume_m3"] >= filt.ambiguity_ratio * candidates[0][1]["volume_m3"]:
+            a, b = candidates[0], candidates[1]
+            raise StageError(
+                "measure",
+                f"{source}: two equally plausible trucks (clusters {a[0]} and {b[0]}: cuboids {a[1]['length_m']:.3g} x {a[1]['width_m']:.3g} x {a[1]['height_m']:.3g} m "
+                f"and {b[1]['length_m']:.3g} x {b[1]['width_m']:.3g} x {b[1]['height_m']:.3g} m); pass --centre X,Y,Z to choose",
+            )
+        chosen = candidates[0][0]
+        stats["selection_rule"] = "largest_cuboid_volume"
+    stats["chosen_label"] = int(chosen)
+    return int(chosen), stats

@@ -1,0 +1,131 @@
+"""``stereo-recon measure``: a good run writes the report; bad input is one line, non-zero, no folder."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from measure.cloud_io import write_cloud
+from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, TruckShape, make_truck_scene
+from stereo_recon.cli import main
+
+
+@pytest.fixture(scope="module")
+def truck_ply(tmp_path_factory):
+    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, noise_m=0.002, tilt_deg=6.0, camera_frame=True), rng=21)
+    path = tmp_path_factory.mktemp("clouds") / "truck.ply"
+    write_cloud(path, pts)
+    return path, truth
+
+
+def _fails(capsys, argv, out_dir, pattern):
+    rc = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert rc != 0
+    assert len(err.splitlines()) == 1, err
+    assert "Traceback" not in err
+    assert pattern in err, err
+    assert not out_dir.exists()
+    return err
+
+
+def test_measure_writes_json_plots_and_report(truck_ply, tmp_path, capsys):
+    path, truth = truck_ply
+    out = tmp_path / "out"
+    assert main(["measure", str(path), "--out", str(out), "--scale", "6"]) == 0
+    text = capsys.readouterr().out
+    assert "length" in text and "verdict" in text
+    m = json.loads((out / "measurement.json").read_text())
+    for d in ("length", "width", "height"):
+        assert abs(m[f"{d}_m"] - truth[f"{d}_m"]) / truth[f"{d}_m"] < 0.01
+        assert m["uncertainty_m"][d] > 0
+    assert m["verdict"]["overall"] in ("within", "over", "undecided")
+    assert len(m["input"]["sha256"]) == 64
+    assert m["parameters"]["resolved"]["eps_m"] > 0 and "numpy" in m["versions"]
+    assert set(m["bandwidths_m"]) == {"length", "width", "height"}
+    for png in ("width_density.png", "length_density.png", "top_view.png", "side_view.png"):
+        assert (out / png).stat().st_size > 1000
+    assert (out / "report.html").exists()
+    assert not list(tmp_path.glob(".out.tmp-*"))
+
+
+def test_model_truck_without_scale_gets_no_legal_verdict(truck_ply, tmp_path, capsys):
+    path, _ = truck_ply
+    out = tmp_path / "o2"
+    assert main(["measure", str(path), "--out", str(out), "--no-plots", "--eps", "0.03", "--bootstrap", "5"]) == 0
+    m = json.loads((out / "measurement.json").read_text())
+    assert m["verdict"]["overall"] == "not-applicable"
+    assert m["parameters"]["resolved"]["eps_m"] == 0.03
+
+
+def test_missing_file(tmp_path, capsys):
+    _fails(capsys, ["measure", str(tmp_path / "nope.ply"), "--out", str(tmp_path / "o")], tmp_path / "o", "no such file")
+
+
+def test_empty_file(tmp_path, capsys):
+    (tmp_path / "e.ply").write_bytes(b"")
+    _fails(capsys, ["measure", str(tmp_path / "e.ply"), "--out", str(tmp_path / "o")], tmp_path / "o", "empty")
+
+
+def test_garbage_ply(tmp_path, capsys):
+    (tmp_path / "g.ply").write_bytes(b"this is not a ply file\n" * 10)
+    _fails(capsys, ["measure", str(tmp_path / "g.ply"), "--out", str(tmp_path / "o")], tmp_path / "o", "g.ply")
+
+
+def test_nan_points(tmp_path, capsys):
+    pts = np.random.default_rng(0).random((500, 3))
+    pts[7, 1] = np.nan
+    np.savetxt(tmp_path / "n.xyz", pts)
+    _fails(capsys, ["measure", str(tmp_path / "n.xyz"), "--out", str(tmp_path / "o")], tmp_path / "o", "NaN or infinite")
+
+
+def test_too_few_points(tmp_path, capsys):
+    np.savetxt(tmp_path / "few.xyz", np.random.default_rng(0).random((20, 3)))
+    _fails(capsys, ["measure", str(tmp_path / "few.xyz"), "--out", str(tmp_path / "o")], tmp_path / "o", "only 20 points")
+
+
+def test_no_ground_plane(tmp_path, capsys):
+    write_cloud(tmp_path / "blob.ply", np.random.default_rng(1).normal(0, 1, (20000, 3)))
+    _fails(capsys, ["measure", str(tmp_path / "blob.ply"), "--out", str(tmp_path / "o")], tmp_path / "o", "no ground plane")
+
+
+def test_no_truck_like_cluster(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    ground = np.c_[rng.random((20000, 2)) * 4, rng.normal(0, 0.001, 20000)]
+    post = np.c_[rng.random((3000, 2)) * 0.05 + 2, rng.random(3000) * 0.5]
+    write_cloud(tmp_path / "post.ply", np.concatenate([ground, post]))
+    err = _fails(capsys, ["measure", str(tmp_path / "post.ply"), "--out", str(tmp_path / "o")], tmp_path / "o", "no truck-like cluster")
+    assert "rejected" in err
+
+
+def test_two_equally_plausible_trucks(tmp_path, capsys):
+    a, ta = make_truck_scene(TruckShape(2.1, 0.38, 0.38), SceneSpec(spacing_m=0.012, ground_margin=0.3), rng=15)
+    side = np.cross(ta["up"], ta["heading"])
+    write_cloud(tmp_path / "two.pcd", np.concatenate([a, a[ta["labels"] == 1] + side * 1.2]))
+    _fails(capsys, ["measure", str(tmp_path / "two.pcd"), "--out", str(tmp_path / "o")], tmp_path / "o", "two equally plausible trucks")
+
+
+def test_config_unknown_key_and_bad_vector(truck_ply, tmp_path, capsys):
+    path, _ = truck_ply
+    (tmp_path / "c.toml").write_text("epsilon = 3\n")
+    _fails(capsys, ["measure", str(path), "--out", str(tmp_path / "o"), "--config", str(tmp_path / "c.toml")], tmp_path / "o", "unknown key")
+    with pytest.raises(SystemExit):
+        main(["measure", str(path), "--out", str(tmp_path / "o"), "--up", "0,1"])
+    assert not (tmp_path / "o").exists()
+
+
+def test_hints_and_config_file(truck_ply, tmp_path, capsys):
+    path, truth = truck_ply
+    (tmp_path / "m.yaml").write_text("measure:\n  eps_res: 3.5\n  bootstrap: 4\n")
+    up = ",".join(f"{v:.4f}" for v in truth["up"] + 0.05)
+    centre = ",".join(f"{v:.4f}" for v in truth["truck_centre"])
+    out = tmp_path / "o"
+    assert main(["measure", str(path), "--out", str(out), "--no-plots", "--config", str(tmp_path / "m.yaml"), "--up", up, "--centre", centre]) == 0
+    m = json.loads((out / "measurement.json").read_text())
+    assert m["ground_plane"]["initial_normal_source"] == "up_hint"
+    assert np.degrees(np.arccos(np.dot(m["ground_plane"]["normal"], truth["up"]))) < 0.1
+    assert m["clusters"]["selection_rule"] == "nearest_to_centre_hint"
+    assert m["parameters"]["eps_res"] == 3.5 and m["parameters"]["bootstrap"] == 4
+    assert abs(m["length_m"] - truth["length_m"]) / truth["length_m"] < 0.01

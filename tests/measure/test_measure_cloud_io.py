@@ -1,0 +1,57 @@
+"""Reading clouds (PLY, PCD, XYZ, PTS) and the point-resolution estimate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from measure.cloud_io import read_cloud, write_cloud
+from measure.resolution import point_resolution
+from stereo_recon.errors import InputError
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".pcd", ".xyz"])
+def test_round_trip(tmp_path, suffix):
+    pts = np.random.default_rng(0).random((300, 3)) * 10
+    write_cloud(tmp_path / f"c{suffix}", pts)
+    back = read_cloud(tmp_path / f"c{suffix}")
+    tol = 1e-6 if suffix != ".xyz" else 1e-5
+    np.testing.assert_allclose(back, pts, atol=tol)
+
+
+def test_pts_with_and_without_count_line(tmp_path):
+    pts = np.random.default_rng(1).random((200, 3))
+    extra = np.c_[pts, np.full((200, 1), 7), np.zeros((200, 3))]   # intensity, rgb
+    np.savetxt(tmp_path / "a.pts", extra, header="200", comments="")
+    np.savetxt(tmp_path / "b.pts", extra)
+    np.testing.assert_allclose(read_cloud(tmp_path / "a.pts"), pts, atol=1e-12)
+    np.testing.assert_allclose(read_cloud(tmp_path / "b.pts"), pts, atol=1e-12)
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        read_cloud(tmp_path / "missing.ply")
+    with pytest.raises(InputError, match="not a file"):
+        read_cloud(tmp_path)
+    (tmp_path / "x.las").write_text("1 2 3\n")
+    with pytest.raises(InputError, match="unsupported"):
+        read_cloud(tmp_path / "x.las")
+    (tmp_path / "e.pcd").write_bytes(b"")
+    with pytest.raises(InputError, match="empty"):
+        read_cloud(tmp_path / "e.pcd")
+    inf = np.random.default_rng(0).random((200, 3))
+    inf[3, 0] = np.inf
+    np.savetxt(tmp_path / "inf.xyz", inf)
+    with pytest.raises(InputError, match="NaN or infinite"):
+        read_cloud(tmp_path / "inf.xyz")
+    (tmp_path / "bad.pts").write_text("hello world\nfoo bar baz\n")
+    with pytest.raises(InputError, match="bad.pts"):
+        read_cloud(tmp_path / "bad.pts")
+
+
+def test_resolution_of_a_regular_grid():
+    g = np.stack(np.meshgrid(np.arange(100), np.arange(100), [0.0], indexing="ij"), -1).reshape(-1, 3) * 0.02
+    assert point_resolution(g) == pytest.approx(0.02, rel=1e-9)
+    # Seeded and independent of the order of points.
+    perm = np.random.default_rng(3).permutation(len(g))
+    assert point_resolution(g[perm], sample_size=500, rng=1) == pytest.approx(0.02, rel=1e-9)

@@ -1,0 +1,164 @@
+"""End-to-end measurement on synthetic truck scenes with exact truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from measure.pipeline import MeasureConfig, config_from_dict, load_config, measure_points
+from measure.synthetic_cloud import FULL_TRUCK, MODEL_TRUCK, SceneSpec, TruckShape, make_truck_scene
+from stereo_recon.errors import ConfigError, InputError, StageError
+
+DIMS = ("length", "width", "height")
+
+
+def _rel_errors(m, truth) -> dict:
+    return {d: abs(getattr(m, f"{d}_m") - truth[f"{d}_m"]) / truth[f"{d}_m"] for d in DIMS}
+
+
+@pytest.mark.parametrize("shape,spacing", [(MODEL_TRUCK, 0.008), (FULL_TRUCK, 0.06)], ids=["model", "full"])
+def test_clean_cloud_within_1_percent(shape, spacing):
+    pts, truth = make_truck_scene(shape, SceneSpec(spacing_m=spacing, tilt_deg=7.0, yaw_deg=40.0, camera_frame=True), rng=11)
+    m = measure_points(pts)
+    err = _rel_errors(m, truth)
+    assert max(err.values()) < 0.01, err
+    assert m.rules == {"width": "kde_two_peaks", "length": "rear_peak_to_front_peak", "height": "roof_peak"}
+    # The uncertainty covers the actual error.
+    for d in DIMS:
+        assert abs(getattr(m, f"{d}_m") - truth[f"{d}_m"]) <= 3 * m.uncertainty_m[d]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shape,spacing", [(MODEL_TRUCK, 0.006), (FULL_TRUCK, 0.05)], ids=["model", "full"])
+def test_realistic_noise_clutter_second_vehicle_within_2_percent(shape, spacing):
+    """Noise 0.4 x spacing, 1% outliers, tilted ground, distractors, a second vehicle a few spacings away."""
+    spec = SceneSpec(spacing_m=spacing, noise_m=0.4 * spacing, outlier_fraction=0.01, tilt_deg=15.0, yaw_deg=-65.0, camera_frame=True,
+                     distractors=5, second_vehicle_gap_m=12 * spacing, density_gradient=1.0, partial_faces={"box_left": 0.5})
+    pts, truth = make_truck_scene(shape, spec, rng=12)
+    m = measure_points(pts)
+    err = _rel_errors(m, truth)
+    assert max(err.values()) < 0.02, err
+    # The chosen cluster is the truck, not merged with the parked vehicle.
+    assert m.clusters["selection_rule"] == "largest_cuboid_volume"
+    assert len(m.clusters["candidates"]) >= 2   # the second vehicle passed the filters and was not chosen
+
+
+@pytest.mark.parametrize(
+    "shape,spec_kw",
+    [
+        (TruckShape(2.1, 0.38, 0.38, cab_width_m=0.33), {}),                        # cab narrower than the box
+        (TruckShape(2.1, 0.38, 0.30, flatbed=True), {}),                            # flatbed: cab is the tallest part
+        (MODEL_TRUCK, {"partial_faces": {"box_left": 0.15, "cab_front": 0.2}}),     # one side and the front barely seen
+    ],
+    ids=["narrow_cab", "flatbed", "sparse_side"],
+)
+def test_fragile_shapes_within_1_percent(shape, spec_kw):
+    pts, truth = make_truck_scene(shape, SceneSpec(spacing_m=0.008, tilt_deg=4.0, **spec_kw), rng=13)
+    m = measure_points(pts)
+    err = _rel_errors(m, truth)
+    assert max(err.values()) < 0.01, (err, m.rules)
+
+
+def test_height_ignores_a_few_stray_points_above_the_roof():
+    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.008), rng=14)
+    on_truck = pts[truth["labels"] == 1]
+    top = on_truck[np.argsort(on_truck @ truth["up"])[-5:]]
+    strays = top + truth["up"] * 0.05          # five points 5 cm above the roof, touching it via FoF? no: 5 cm is > eps
+    strays2 = top + truth["up"] * 0.01        # five points 1 cm above the roof (same cluster)
+    m = measure_points(np.concatenate([pts, strays, strays2]))
+    assert abs(m.height_m - truth["height_m"]) / truth["height_m"] < 0.01
+
+
+def test_centre_hint_picks_the_other_vehicle_and_ambiguity_is_refused():
+    shape = TruckShape(2.1, 0.38, 0.38)
+    a, ta = make_truck_scene(shape, SceneSpec(spacing_m=0.01, ground_margin=0.3), rng=15)
+    # The same truck again, 1.2 m to the side: two equally plausible trucks.
+    side = np.cross(ta["up"], ta["heading"])
+    b = a[ta["labels"] == 1] + side * 1.2
+    pts = np.concatenate([a, b])
+    with pytest.raises(StageError, match="two equally plausible trucks"):
+        measure_points(pts)
+    m = measure_points(pts, centre_hint=ta["truck_centre"] + side * 1.2)
+    assert m.clusters["selection_rule"] == "nearest_to_centre_hint"
+    assert abs(m.length_m - 2.1) < 0.021
+
+
+def test_no_truck_like_cluster_names_the_filter():
+    rng = np.random.default_rng(0)
+    ground = np.c_[rng.random((20000, 2)) * 4, rng.normal(0, 0.001, 20000)]
+    post = np.c_[rng.random((3000, 2)) * 0.05 + 2, rng.random(3000) * 0.5]   # a thin post
+    with pytest.raises(StageError, match="no truck-like cluster.*(min_length|length_to_width)"):
+        measure_points(np.concatenate([ground, post]))
+
+
+def test_no_ground_plane():
+    blob = np.random.default_rng(1).normal(0, 1, (20000, 3))
+    with pytest.raises(StageError, match="no ground plane"):
+        measure_points(blob)
+
+
+def test_bad_points_are_input_errors():
+    with pytest.raises(InputError, match="NaN"):
+        measure_points(np.full((500, 3), np.nan))
+    with pytest.raises(InputError, match="only 10 points"):
+        measure_points(np.zeros((10, 3)))
+
+
+def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
+    with pytest.raises(ConfigError, match="unknown key.*eps_meters"):
+        config_from_dict({"eps_meters": 0.05})
+    with pytest.raises(ConfigError, match="must be a number"):
+        config_from_dict({"eps_m": "big"})
+    with pytest.raises(ConfigError, match="positive"):
+        config_from_dict({"eps_res": -1})
+    (tmp_path / "m.toml").write_text("[measure]\neps_m = 0.05\nbootstrap = 5\n")
+    assert load_config(tmp_path / "m.toml") == MeasureConfig(eps_m=0.05, bootstrap=5)
+    (tmp_path / "m.yaml").write_text("ground_thickness_res: 4\nmin_cluster_points: 100\n")
+    assert load_config(tmp_path / "m.yaml") == MeasureConfig(ground_thickness_res=4.0, min_cluster_points=100)
+    (tmp_path / "bad.yaml").write_text("eps_m: [1, 2\n")
+    with pytest.raises(ConfigError, match="cannot parse"):
+        load_config(tmp_path / "bad.yaml")
+
+
+@pytest.mark.slow
+def test_cab_across_the_gap_is_joined_but_a_vehicle_in_line_is_not():
+    shape = TruckShape(2.1, 0.38, 0.38, chassis_rails=False, gap_m=0.05)   # nothing joins cab and box
+    pts, truth = make_truck_scene(shape, SceneSpec(spacing_m=0.008, noise_m=0.002), rng=16)
+    m = measure_points(pts)
+    assert len(m.clusters["merged_labels"]) == 2
+    assert abs(m.length_m - 2.1) / 2.1 < 0.01
+    # The paper's single-cluster rule loses the cab.
+    single = measure_points(pts, MeasureConfig(merge_gap_res=0))
+    assert single.length_m < 0.9 * 2.1
+    # A smaller box parked in line 0.4 m behind the truck stays out.
+    box = pts[truth["labels"] == 1]
+    behind = box[(box - truth["truck_centre"]) @ truth["heading"] < -0.5] - truth["heading"] * (0.4 + 0.55)
+    m2 = measure_points(np.concatenate([pts, behind]))
+    assert abs(m2.length_m - 2.1) / 2.1 < 0.01
+
+
+@pytest.mark.slow
+def test_eq4_tuning_picks_the_value_with_the_smallest_error():
+    from measure.tuning import tune_by_mse
+
+    clouds, truths = [], []
+    for seed, shape in ((31, TruckShape(2.1, 0.38, 0.38)), (32, TruckShape(1.6, 0.3, 0.33))):
+        pts, t = make_truck_scene(shape, SceneSpec(spacing_m=0.01, noise_m=0.002), rng=seed)
+        clouds.append(pts)
+        truths.append(t)
+    # A huge ground thickness cuts the truck's lower part away: its height error must lose.
+    out = tune_by_mse(clouds, truths, "ground_thickness_res", (3.5, 80.0), MeasureConfig(bootstrap=2))
+    mse = {r["value"]: r["mse_m2"] for r in out["table"]}
+    assert out["best"] == 3.5 and mse[3.5] < mse[80.0]
+    assert mse[3.5] < 1e-5   # (mm-level errors)²
+    with pytest.raises(ConfigError):
+        tune_by_mse(clouds, truths, "no_such_field")
+
+
+def test_barely_seen_roof_is_flagged_and_its_uncertainty_covers_the_error():
+    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.012, noise_m=0.004, tilt_deg=10.0, partial_faces={"box_top": 0.1}), rng=3)
+    m = measure_points(pts)
+    assert any("roof barely seen" in w for w in m.details["warnings"])
+    assert abs(m.height_m - truth["height_m"]) <= 2 * m.uncertainty_m["height"]
+    full, truth2 = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.012, noise_m=0.004, tilt_deg=10.0), rng=3)
+    assert not measure_points(full).details["warnings"]
