@@ -75,9 +75,12 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
     lo, hi = _robust_extremes(counts, grid, cfg.extreme_fraction)
     extent = hi - lo
     pos = np.array([refine_peak(grid, dens, int(i)) for i in pk])
-    win = cfg.end_window * extent + 2 * h
-    left = pos[pos <= lo + win] if len(pos) else pos
-    right = pos[pos >= hi - win] if len(pos) else pos
+    # Wall peaks are the outermost significant peaks on each side of the centre (Eq. 9 per
+    # mode of the bimodal density). A fused cloud can carry a thin tail of stray points
+    # outside one wall, so peaks are not required to sit next to the extremes.
+    mid = 0.5 * (lo + hi)
+    left = pos[pos < mid] if len(pos) else pos
+    right = pos[pos > mid] if len(pos) else pos
     if len(left) and len(right) and right.max() - left.min() >= cfg.wall_min_share * extent:
         e0, e1 = float(left.min()), float(right.max())
         # A wider part just outside a wall (a cab wider than the box by less than the noise

@@ -35,6 +35,9 @@ class MeasureConfig:
     ground_max_iter: int = 30
     min_ground_fraction: float = 0.05        # a ground layer holds at least this share of all points
     min_ground_contrast: float = 2.0         # ... and this many times the points of the layers beside it
+    ground_noise_band: float = 2.5           # ξ >= this x the ground layer's measured robust sigma (0 = off)
+    ground_noise_thickness: float = 3.0      # d_h >= this x the ground layer's measured robust sigma
+    ground_noise_max_res: float = 12.0       # ... but a noise-widened band stays <= this x resolution
     # Ground removal thickness d_h (paper: 3–4 x resolution, 0.07 m at theirs).
     ground_thickness_res: float = 3.5
     ground_thickness_m: float | None = None
@@ -181,6 +184,14 @@ def _parse_vec(v, name: str) -> np.ndarray | None:
     return a
 
 
+def _layer_sigma(heights: np.ndarray, xi_m: float) -> float:
+    """Robust sigma (1.4826 MAD) of the heights of points near the ground plane, metres."""
+    near = heights[np.abs(heights) <= 8 * xi_m]
+    if len(near) < 10:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(near - np.median(near))))
+
+
 def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig(), up_hint: np.ndarray | None = None,
                    centre_hint: np.ndarray | None = None, rng=0, source: str = "cloud") -> Measurement:
     """Measure the truck in a point cloud.
@@ -228,6 +239,20 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     t = time.perf_counter()
     try:
         plane = ground_plane(p, xi, up_hint=up, max_iter=cfg.ground_max_iter, rng=rng)
+        # A fused stereo cloud's ground is thicker than its point spacing (depth noise grows
+        # with range), so a band of a few spacings would cut the layer in half. Measure the
+        # layer's own thickness (robust sigma of the heights near the plane) and widen ξ and
+        # d_h to it when the caller has not fixed them.
+        layer_sigma = _layer_sigma(plane.height(p), xi)
+        noisy_xi = cfg.ground_noise_band * layer_sigma
+        # A layer much thicker than a dozen point spacings is no ground at all (a blob, a
+        # volume): do not widen, and let the layer-contrast check below reject it.
+        if cfg.ground_band_m is None and cfg.ground_noise_band > 0 and xi < noisy_xi <= cfg.ground_noise_max_res * res:
+            xi = noisy_xi
+            plane = ground_plane(p, xi, up_hint=plane.normal, max_iter=cfg.ground_max_iter, rng=rng)
+            layer_sigma = _layer_sigma(plane.height(p), xi)
+        if cfg.ground_thickness_m is None and xi == noisy_xi:
+            d_h = max(d_h, cfg.ground_noise_thickness * layer_sigma)
     except ValueError as err:
         raise StageError("measure", f"{source}: no ground plane ({err})") from None
     if plane.inlier_rate < cfg.min_ground_fraction:
@@ -291,7 +316,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     ground = {"normal": plane.normal, "offset_m": plane.offset, "equation": "normal . p + offset_m = 0 (normal points up)",
               "inlier_rate": plane.inlier_rate, "n_inliers": plane.n_inliers, "rms_m": plane.rms_m, "iterations": plane.iterations,
               "initial_normal": plane.initial_normal, "initial_normal_source": plane.initial_normal_source,
-              "n_above_ground": int(keep.sum()), "layer_contrast": contrast, "n_removed": int((~keep).sum())}
+              "n_above_ground": int(keep.sum()), "layer_contrast": contrast, "layer_sigma_m": layer_sigma, "band_xi_m": xi, "n_removed": int((~keep).sum())}
     cstats["n_truck_points"] = int(len(truck))
     return Measurement(
         length_m=float(dims["length_m"]), width_m=float(dims["width_m"]), height_m=float(dims["height_m"]),
