@@ -80,6 +80,8 @@ def estimate_up(points: np.ndarray, rng=0, sample_size: int = 20_000, k: int = 1
     cosc = np.cos(np.deg2rad(cone_deg))
     votes = (np.abs(cand @ voters.T) > cosc).sum(axis=1)
     best = cand[int(np.argmax(votes))]
+    if prior is None:
+        best = _widest_layer_orientation(p, cand, votes, rng)
     # Refine: mean of the agreeing normals (signs aligned).
     agree = normals[np.abs(normals @ best) > cosc]
     agree = agree * np.sign(agree @ best)[:, None]
@@ -94,6 +96,55 @@ def estimate_up(points: np.ndarray, rng=0, sample_size: int = 20_000, k: int = 1
     if np.mean(h > peak) < np.mean(h < peak):
         up = -up
     return up
+
+
+def _widest_layer_orientation(p: np.ndarray, cand: np.ndarray, votes: np.ndarray, rng, n_orient: int = 3,
+                              min_sep_deg: float = 30.0) -> np.ndarray:
+    """Among the most-voted, mutually distinct normal orientations, the one whose densest layer
+    spreads widest in its plane.
+
+    A noisy ground votes less sharply than a clean truck wall, so votes alone can pick a wall;
+    but the ground is by far the widest planar layer of the scene.
+    """
+    order = np.argsort(votes)[::-1]
+    picked: list[np.ndarray] = []
+    cos_sep = np.cos(np.deg2rad(min_sep_deg))
+    for i in order:
+        if votes[i] < 0.25 * votes[order[0]]:
+            break
+        if all(abs(cand[i] @ q) < cos_sep for q in picked):
+            picked.append(cand[i])
+        if len(picked) == n_orient:
+            break
+    sub = p[rng.choice(len(p), min(50_000, len(p)), replace=False)]
+    # Local normals of a noisy ground (noise ~ neighbourhood size) are not planar and cast no
+    # votes; the least-variance axis of the whole cloud stands for a ground that dominates it.
+    q = sub - sub.mean(axis=0)
+    glob = np.linalg.eigh(q.T @ q)[1][:, 0]
+    if all(abs(glob @ c) < cos_sep for c in picked):
+        picked.append(glob)
+    if len(picked) == 1:
+        return picked[0]
+    best, best_spread = picked[0], -1.0
+    for n in picked:
+        h = sub @ n
+        lo, hi = np.quantile(h, [0.01, 0.99])
+        band = max((hi - lo) / 50, 1e-9)
+        counts, edges = np.histogram(h, bins=np.arange(lo, hi + band, band))
+        spread = -1.0
+        # The few densest layers of this orientation (a noisy ground may be less dense than a
+        # clean roof), each judged by its extent in the plane.
+        for k in np.argsort(counts)[::-1][:3]:
+            layer = sub[(h >= edges[k] - band) & (h <= edges[k + 1] + band)]
+            if len(layer) < 10:
+                continue
+            q = layer - layer.mean(axis=0)
+            ev = np.linalg.eigvalsh(q.T @ q / len(layer))
+            spread = max(spread, float(np.sqrt(max(ev[1], 0) * max(ev[2], 0))))
+        log.debug('orientation %s: layer spread %.4g', n, spread)
+        if spread > best_spread:
+            best, best_spread = n, spread
+    return best
 
 
 def _fit_plane(pts: np.ndarray) -> tuple[np.ndarray, float, float]:
