@@ -1,0 +1,318 @@
+"""Camera poses by structure from motion (pycolmap), made metric with stereo depth.
+
+Pipeline: SIFT extraction with the rectified pinhole intrinsics fixed -> matching (exhaustive for
+small sets; otherwise sequential neighbours plus a sparse grid of loop pairs, written as an explicit
+pair list so that no vocabulary tree is needed and nothing is fetched at run time) -> incremental
+mapping with focal length, principal point and distortion held fixed -> metric scale as the
+median ratio of stereo depth to SfM depth at the triangulated points.
+
+Output poses are world-from-left-camera in metres, with the world frame put at the first
+registered camera (as the visual-odometry back-end does).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stereo_recon.errors import InputError, StageError
+from stereo_recon.trajectory import Trajectory
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
+
+
+@dataclass(frozen=True)
+class SfMConfig:
+    """Settings of the pycolmap back-end."""
+
+    # "auto": exhaustive matching up to exhaustive_max_images images, else sequential + loop pairs
+    # (exhaustive matching grows with the square of the image count: 60 HD720 frames take minutes).
+    matching: str = "auto"
+    exhaustive_max_images: int = 25
+    # Sequential matching: each image is matched with its next `sequential_overlap` images.
+    sequential_overlap: int = 6
+    # Loop pairs: every `loop_stride`-th image is matched with every other such image that is more
+    # than sequential_overlap frames away, so an orbit returning to its start gets closed.
+    loop_stride: int = 6
+    # SIFT features per image; matching time grows with its square. None: 4096 for small images
+    # (long side <= 1000 px, e.g. the 640x480 temple ring, which needs them), 2048 for video frames.
+    max_num_features: int | None = None
+    # SIFT first octave: -1 upsamples the image twice (4x the extraction time; helps small images),
+    # 0 starts at full size. None: -1 for images up to 1000 px on the long side, else 0.
+    sift_first_octave: int | None = None
+    # Longest image side fed to SIFT (-1: full size); intrinsics are given at full size.
+    max_image_size: int = -1
+    # SIFT peak threshold: lower than COLMAP's 0.0067 finds more features on texture-poor surfaces
+    # (temple ring, seeds 0-2: worst rotation error 0.41-0.43 deg at 0.002, 0.44-0.49 at 0.004).
+    sift_peak_threshold: float = 0.002
+    # Re-match pairs guided by their verified epipolar geometry (more matches on weak texture; about
+    # doubles the matching time). None: on for small images only, as max_num_features.
+    guided_matching: bool | None = None
+    # Mapper thresholds, relaxed from COLMAP's 15 / 100 / 30 so that sparse, weakly textured
+    # views (e.g. the Middlebury temple ring) still register; geometric verification stays on.
+    min_num_matches: int = 10
+    init_min_num_inliers: int = 50
+    abs_pose_min_num_inliers: int = 15
+    # Observations reprojecting further than this (px) are dropped after bundle adjustment. COLMAP's
+    # default is 4 px; with the intrinsics known, 1 px halves the rotation errors on the temple ring.
+    filter_max_reproj_error_px: float = 1.0
+    # Fewer registered images than this fraction of the input -> StageError.
+    min_registered_fraction: float = 0.5
+    # Depth samples outside this range are ignored when estimating the metric scale (metres).
+    scale_depth_min_m: float = 0.3
+    scale_depth_max_m: float = 20.0
+    # At least this many depth/SfM correspondences are needed for a metric scale.
+    scale_min_samples: int = 50
+    # Threads for pycolmap (-1: all cores).
+    num_threads: int = -1
+    # Seed of pycolmap's RANSAC and mapper.
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        from stereo_recon.errors import ConfigError
+
+        if self.matching not in ("auto", "exhaustive", "sequential"):
+            raise ConfigError(f"SfMConfig.matching: {self.matching!r} is not auto, exhaustive or sequential")
+        if self.sequential_overlap < 1 or self.loop_stride < 1:
+            raise ConfigError("SfMConfig: sequential_overlap and loop_stride must be >= 1")
+
+
+def _frame_index(stem: str, fallback: int) -> int:
+    m = re.search(r"(\d+)$", stem)
+    return int(m.group(1)) if m else fallback
+
+
+def list_images(image_dir) -> list[str]:
+    """Sorted image file names (not paths) in image_dir; InputError if there are fewer than 3."""
+    image_dir = Path(image_dir)
+    if not image_dir.is_dir():
+        raise InputError(f"{image_dir}: image folder not found")
+    names = sorted(p.name for p in image_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+    if len(names) < 3:
+        raise InputError(f"{image_dir}: {len(names)} images, SfM needs at least 3")
+    return names
+
+
+def loop_pairs(n: int, overlap: int, stride: int) -> list[tuple[int, int]]:
+    """Image index pairs for sequential + loop matching (i < j, no duplicates).
+
+    n: images in video order. overlap: each image is paired with the next `overlap` ones.
+    stride: images 0, stride, 2*stride ... are also paired with each other when further apart than overlap.
+    """
+    pairs = {(i, j) for i in range(n) for j in range(i + 1, min(n, i + overlap + 1))}
+    sparse = list(range(0, n, stride))
+    pairs |= {(i, j) for a, i in enumerate(sparse) for j in sparse[a + 1 :] if j - i > overlap}
+    return sorted(pairs)
+
+
+def _pose_T_wc(image) -> np.ndarray:
+    cfw = image.cam_from_world
+    cfw = cfw() if callable(cfw) else cfw
+    M = np.eye(4)
+    M[:3, :4] = np.asarray(cfw.matrix())
+    return np.linalg.inv(M)
+
+
+def _metric_scale(rec, names_by_id: dict, depth_dir: Path, config: SfMConfig) -> tuple[float, dict]:
+    """Median of stereo depth / SfM depth over triangulated points seen in images with depth maps."""
+    ratios = []
+    used = 0
+    for image_id, image in rec.images.items():
+        name = names_by_id[image_id]
+        path = depth_dir / (Path(name).stem + ".npy")
+        if not path.is_file():
+            continue
+        depth = np.load(path, mmap_mode="r")
+        T_cw = np.linalg.inv(_pose_T_wc(image))
+        uv, xyz = [], []
+        for p2d in image.points2D:
+            if p2d.has_point3D():
+                uv.append(p2d.xy)
+                xyz.append(rec.points3D[p2d.point3D_id].xyz)
+        if not uv:
+            continue
+        uv = np.asarray(uv)
+        Xc = np.asarray(xyz) @ T_cw[:3, :3].T + T_cw[:3, 3]
+        # COLMAP's pixel centres are at +0.5; depth map pixel (r, c) has its centre at (c + 0.5, r + 0.5).
+        cols = np.floor(uv[:, 0]).astype(int)
+        rows = np.floor(uv[:, 1]).astype(int)
+        h, w = depth.shape[:2]
+        ok = (cols >= 0) & (cols < w) & (rows >= 0) & (rows < h) & (Xc[:, 2] > 0)
+        d = np.full(len(uv), np.nan)
+        d[ok] = depth[rows[ok], cols[ok]]
+        ok &= np.isfinite(d) & (d >= config.scale_depth_min_m) & (d <= config.scale_depth_max_m)
+        if ok.any():
+            used += 1
+            ratios.append(d[ok] / Xc[ok, 2])
+    r = np.concatenate(ratios) if ratios else np.zeros(0)
+    if len(r) < config.scale_min_samples:
+        raise StageError(
+            "poses",
+            f"SfM metric scale: only {len(r)} stereo-depth samples at triangulated points "
+            f"(need {config.scale_min_samples}); check the depth maps in {depth_dir}",
+        )
+    s = float(np.median(r))
+    mad = float(np.median(np.abs(r - s)))
+    q25, q75 = np.percentile(r, [25, 75])
+    stats = {
+        "scale_source": "stereo_depth_ratio",
+        "scale": s,
+        "scale_mad_rel": mad / s,
+        "scale_iqr_rel": float((q75 - q25) / s),
+        "scale_samples": int(len(r)),
+        "scale_images": int(used),
+    }
+    return s, stats
+
+
+def sfm_poses(
+    image_dir,
+    K_rect: np.ndarray,
+    work_dir,
+    baseline_m: float | None = None,
+    depth_dir=None,
+    config: SfMConfig = SfMConfig(),
+    fps: float | None = None,
+    image_names: list[str] | None = None,
+) -> Trajectory:
+    """Poses of the (rectified, left-eye) images in image_dir by pycolmap incremental SfM.
+
+    image_dir: folder of images in video order; frame indices come from trailing digits of the names.
+    K_rect: (3,3) pinhole intrinsics in px, shared by all images and held fixed.
+    work_dir: scratch folder (database.db, sparse/); its previous SfM files are replaced.
+    baseline_m: stereo baseline (recorded in the stats; metric scale comes from depth_dir).
+    depth_dir: folder of <image stem>.npy left-eye depth maps (metres, NaN invalid) aligned with
+        the images; gives the metric scale. Without it the poses keep SfM's arbitrary scale
+        (stats["scale_source"] == "none").
+    fps: timestamps = index / fps (else the index itself).
+    Returns world-from-left-camera poses of the registered images; unregistered names in stats.
+    Raises StageError('poses', ...) when the reconstruction fails.
+    """
+    import cv2
+    import pycolmap
+
+    if not log.isEnabledFor(logging.DEBUG):
+        pycolmap.logging.minloglevel = 1  # COLMAP's per-image INFO lines only with -v -v
+    image_dir = Path(image_dir)
+    names = list(image_names) if image_names is not None else list_images(image_dir)
+    K = np.asarray(K_rect, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise InputError(f"K_rect: expected a 3x3 matrix, got shape {K.shape}")
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    db = work_dir / "database.db"
+    sparse = work_dir / "sparse"
+    for p in (db, work_dir / "database.db-shm", work_dir / "database.db-wal"):
+        p.unlink(missing_ok=True)
+    shutil.rmtree(sparse, ignore_errors=True)
+    sparse.mkdir()
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    # COLMAP puts pixel centres at +0.5 (image origin at the top-left corner), OpenCV at integers.
+    reader.camera_params = ",".join(f"{v:.9g}" for v in (K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5))
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = config.num_threads
+    extraction.max_image_size = config.max_image_size
+    extraction.sift.peak_threshold = config.sift_peak_threshold
+    first = cv2.imread(str(image_dir / names[0]), cv2.IMREAD_UNCHANGED)
+    if first is None:
+        raise InputError(f"{image_dir / names[0]}: cannot read image")
+    small = max(first.shape[:2]) <= 1000
+    extraction.sift.first_octave = (config.sift_first_octave if config.sift_first_octave is not None
+                                    else -1 if small else 0)
+    extraction.sift.max_num_features = (config.max_num_features if config.max_num_features is not None
+                                        else 4096 if small else 2048)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = config.num_threads
+    matching.guided_matching = config.guided_matching if config.guided_matching is not None else small
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = config.seed
+    try:
+        pycolmap.extract_features(
+            db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+        )
+        mode = config.matching
+        if mode == "auto":
+            mode = "exhaustive" if len(names) <= config.exhaustive_max_images else "sequential"
+        if mode == "exhaustive":
+            pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification,
+                                      device=pycolmap.Device.cpu)
+            n_pairs = len(names) * (len(names) - 1) // 2
+        else:
+            pairs = loop_pairs(len(names), config.sequential_overlap, config.loop_stride)
+            pair_file = work_dir / "pairs.txt"
+            pair_file.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+            pairing = pycolmap.ImportedPairingOptions()
+            pairing.match_list_path = str(pair_file)
+            pycolmap.match_image_pairs(db, matching_options=matching, pairing_options=pairing,
+                                       verification_options=verification, device=pycolmap.Device.cpu)
+            n_pairs = len(pairs)
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.num_threads = config.num_threads
+        opts.random_seed = config.seed
+        opts.multiple_models = False
+        opts.ba_refine_focal_length = False
+        opts.ba_refine_principal_point = False
+        opts.ba_refine_extra_params = False
+        opts.mapper.abs_pose_refine_focal_length = False
+        opts.mapper.abs_pose_refine_extra_params = False
+        opts.min_num_matches = config.min_num_matches
+        opts.mapper.init_min_num_inliers = config.init_min_num_inliers
+        opts.mapper.abs_pose_min_num_inliers = config.abs_pose_min_num_inliers
+        opts.mapper.filter_max_reproj_error = config.filter_max_reproj_error_px
+        opts.mapper.random_seed = config.seed
+        opts.triangulation.random_seed = config.seed
+        models = pycolmap.incremental_mapping(db, image_dir, sparse, options=opts)
+    except StageError:
+        raise
+    except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on bad input
+        raise StageError("poses", f"pycolmap SfM failed on {image_dir}: {err}") from err
+    if not models:
+        raise StageError("poses", f"SfM found no initial image pair in {image_dir} ({len(names)} images)")
+    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    n_reg = rec.num_reg_images()
+    if n_reg < max(3, int(np.ceil(config.min_registered_fraction * len(names)))):
+        raise StageError("poses", f"SfM registered only {n_reg} of {len(names)} images in {image_dir}")
+
+    names_by_id = {iid: img.name for iid, img in rec.images.items()}
+    reg = sorted((names.index(img.name), iid) for iid, img in rec.images.items() if img.has_pose)
+    order = [iid for _, iid in reg]
+    if not order:
+        raise StageError("poses", f"SfM registered no image in {image_dir}")
+    T = np.stack([_pose_T_wc(rec.images[iid]) for iid in order])
+    stats: dict = {
+        "backend": "sfm",
+        "images": len(names),
+        "registered": len(order),
+        "unregistered": sorted(set(names) - {names_by_id[i] for i in order}),
+        "matching": mode,
+        "match_pairs": int(n_pairs),
+        "points3D": int(rec.num_points3D()),
+        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+        "baseline_m": baseline_m,
+    }
+    scale = 1.0
+    if depth_dir is not None:
+        scale, sstats = _metric_scale(rec, names_by_id, Path(depth_dir), config)
+        stats.update(sstats)
+    else:
+        stats["scale_source"] = "none"
+        log.warning("SfM without depth maps: poses are up to an unknown scale")
+    # World frame at the first registered camera, metres.
+    T0_inv = np.linalg.inv(T[0])
+    T = T0_inv @ T
+    T[:, :3, 3] *= scale
+    idx = np.array([_frame_index(Path(names_by_id[i]).stem, pos) for pos, i in reg])
+    ts = idx / fps if fps else idx.astype(float)
+    log.info("SfM: %d/%d images registered, %d points, scale %.5g", len(order), len(names),
+             stats["points3D"], scale)
+    return Trajectory(idx, ts, T, stats)

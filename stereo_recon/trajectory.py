@@ -1,0 +1,274 @@
+"""Camera trajectories: the TUM ``poses.txt`` format, Umeyama alignment, trajectory errors and 'up'.
+
+Poses are world-from-left-camera (``X_world = R_wc @ X_cam + t_wc``), metres, OpenCV camera axes
+(x right, y down, z forward); see :mod:`stereo_recon.conventions`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stereo_recon.errors import InputError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Trajectory:
+    """A sequence of camera poses.
+
+    indices: (N,) int frame indices in the source video.
+    timestamps_s: (N,) float seconds (TUM timestamp; frame index / fps for videos).
+    T_wc: (N, 4, 4) float world-from-left-camera poses, metres.
+    stats: free-form counts and diagnostics (tracking gaps, loop closures, scale spread ...).
+    """
+
+    indices: np.ndarray
+    timestamps_s: np.ndarray
+    T_wc: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.indices = np.asarray(self.indices, dtype=np.int64).reshape(-1)
+        self.timestamps_s = np.asarray(self.timestamps_s, dtype=np.float64).reshape(-1)
+        self.T_wc = np.asarray(self.T_wc, dtype=np.float64).reshape(-1, 4, 4)
+        n = len(self.T_wc)
+        if len(self.indices) != n or len(self.timestamps_s) != n:
+            raise ValueError(
+                f"Trajectory: {len(self.indices)} indices, {len(self.timestamps_s)} timestamps, {n} poses"
+            )
+
+    def __len__(self) -> int:
+        return len(self.T_wc)
+
+    @property
+    def centres_m(self) -> np.ndarray:
+        """(N, 3) camera centres in the world frame, metres."""
+        return self.T_wc[:, :3, 3].copy()
+
+    def path_length_m(self) -> float:
+        """Sum of the distances between consecutive camera centres, metres."""
+        c = self.centres_m
+        return float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) if len(c) > 1 else 0.0
+
+    def subset(self, mask_or_idx) -> "Trajectory":
+        """The poses selected by a boolean mask or an index array (stats kept)."""
+        sel = np.asarray(mask_or_idx)
+        return Trajectory(self.indices[sel], self.timestamps_s[sel], self.T_wc[sel], dict(self.stats))
+
+    def transformed(self, s: float, R: np.ndarray, t: np.ndarray) -> "Trajectory":
+        """Poses mapped by the similarity ``X -> s R X + t`` (camera rotations stay orthonormal)."""
+        T = self.T_wc.copy()
+        T[:, :3, :3] = R @ self.T_wc[:, :3, :3]
+        T[:, :3, 3] = s * (self.T_wc[:, :3, 3] @ R.T) + t
+        return Trajectory(self.indices.copy(), self.timestamps_s.copy(), T, dict(self.stats))
+
+
+# ----------------------------------------------------------------------------------------- TUM I/O
+
+
+def _quat_xyzw_from_R(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R).as_quat()  # scipy order is (x, y, z, w), as TUM
+
+
+def write_tum(path, traj: Trajectory) -> Path:
+    """Write ``timestamp tx ty tz qx qy qz qw`` lines (TUM RGB-D format, evo-readable); atomic.
+
+    path: output file. traj: world-from-left-camera poses, metres.
+    """
+    path = Path(path)
+    q = _quat_xyzw_from_R(traj.T_wc[:, :3, :3]) if len(traj) else np.zeros((0, 4))
+    lines = ["# timestamp tx ty tz qx qy qz qw  (world-from-left-camera, metres)"]
+    for ts, T, qi in zip(traj.timestamps_s, traj.T_wc, q):
+        t = T[:3, 3]
+        lines.append(
+            f"{ts:.6f} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} {qi[0]:.9f} {qi[1]:.9f} {qi[2]:.9f} {qi[3]:.9f}"
+        )
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def read_tum(path, fps: float | None = None) -> Trajectory:
+    """Read a TUM trajectory file (``#`` comments and blank lines skipped).
+
+    fps: if given, frame indices are ``round(timestamp * fps)``; else 0..N-1.
+    Raises InputError naming the file and line for malformed content.
+    """
+    from scipy.spatial.transform import Rotation
+
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise InputError(f"{path}: cannot read trajectory ({err.strerror or err})") from err
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.replace(",", " ").split()
+        if len(parts) != 8:
+            raise InputError(f"{path}:{lineno}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw', got {len(parts)}")
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError as err:
+            raise InputError(f"{path}:{lineno}: not a number ({err})") from err
+        if not np.all(np.isfinite(vals)):
+            raise InputError(f"{path}:{lineno}: non-finite value")
+        if np.linalg.norm(vals[4:]) < 1e-9:
+            raise InputError(f"{path}:{lineno}: zero quaternion")
+        rows.append(vals)
+    if not rows:
+        raise InputError(f"{path}: no poses in file")
+    a = np.asarray(rows, dtype=np.float64)
+    T = np.tile(np.eye(4), (len(a), 1, 1))
+    T[:, :3, :3] = Rotation.from_quat(a[:, 4:8]).as_matrix()
+    T[:, :3, 3] = a[:, 1:4]
+    idx = np.rint(a[:, 0] * fps).astype(np.int64) if fps else np.arange(len(a))
+    return Trajectory(idx, a[:, 0], T)
+
+
+# ------------------------------------------------------------------------------------- alignment
+
+
+def align_umeyama(src_xyz: np.ndarray, dst_xyz: np.ndarray, with_scale: bool = True):
+    """Least-squares similarity ``dst ~ s R src + t`` (Umeyama 1991, eqs. 40-42).
+
+    src_xyz, dst_xyz: (N, 3) corresponding points, N >= 3 (not all collinear for a unique R).
+    Returns (s, R (3,3), t (3,)); s = 1 when with_scale is False.
+    """
+    src = np.asarray(src_xyz, dtype=np.float64).reshape(-1, 3)
+    dst = np.asarray(dst_xyz, dtype=np.float64).reshape(-1, 3)
+    if len(src) != len(dst) or len(src) < 3:
+        raise ValueError(f"align_umeyama: need >= 3 corresponding points, got {len(src)} and {len(dst)}")
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / len(src)  # eq. 38
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:  # eq. 39: keep a proper rotation
+        S[2, 2] = -1.0
+    R = U @ S @ Vt  # eq. 40
+    if with_scale:
+        var_s = (xs**2).sum() / len(src)  # eq. 36
+        s = float(np.trace(np.diag(D) @ S) / var_s) if var_s > 0 else 1.0  # eq. 42
+    else:
+        s = 1.0
+    t = mu_d - s * R @ mu_s  # eq. 41
+    return s, R, t
+
+
+def _associate(est: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (into est, into gt) of poses sharing a frame index."""
+    common, ie, ig = np.intersect1d(est.indices, gt.indices, return_indices=True)
+    if len(common) < 3:
+        raise ValueError(f"trajectories share only {len(common)} frame indices (need >= 3)")
+    return ie, ig
+
+
+def _rot_angle_deg(R: np.ndarray) -> np.ndarray:
+    """Rotation angles (deg) of (N,3,3) matrices; via quaternions, exact near 0 unlike arccos of the trace."""
+    from scipy.spatial.transform import Rotation
+
+    return np.degrees(Rotation.from_matrix(R).magnitude())
+
+
+def absolute_trajectory_error(est: Trajectory, gt: Trajectory, with_scale: bool = True) -> dict:
+    """ATE of the camera centres after Umeyama alignment of est onto gt (frames matched by index).
+
+    Returns rmse_m, mean_m, median_m, max_m, the same relative to gt's path length
+    (rmse_rel_path ...), path_length_m, scale (s of the alignment; 1 without scale),
+    rotation errors after alignment (rot_rmse_deg, rot_max_deg) and n (poses compared).
+    """
+    ie, ig = _associate(est, gt)
+    e, g = est.subset(ie), gt.subset(ig)
+    s, R, t = align_umeyama(e.centres_m, g.centres_m, with_scale=with_scale)
+    al = e.transformed(s, R, t)
+    err = np.linalg.norm(al.centres_m - g.centres_m, axis=1)
+    rot = _rot_angle_deg(np.swapaxes(g.T_wc[:, :3, :3], 1, 2) @ al.T_wc[:, :3, :3])
+    L = g.path_length_m()
+    rel = (lambda v: float(v / L)) if L > 0 else (lambda v: float("nan"))
+    out = {
+        "n": int(len(err)),
+        "rmse_m": float(np.sqrt(np.mean(err**2))),
+        "mean_m": float(err.mean()),
+        "median_m": float(np.median(err)),
+        "max_m": float(err.max()),
+        "path_length_m": float(L),
+        "scale": float(s),
+        "rot_rmse_deg": float(np.sqrt(np.mean(rot**2))),
+        "rot_max_deg": float(rot.max()),
+    }
+    out.update(
+        rmse_rel_path=rel(out["rmse_m"]), median_rel_path=rel(out["median_m"]), max_rel_path=rel(out["max_m"])
+    )
+    return out
+
+
+def relative_pose_error(est: Trajectory, gt: Trajectory, delta: int = 1) -> dict:
+    """RPE over pose pairs ``delta`` apart (in the common frames): translation (m) and rotation (deg).
+
+    Scale-sensitive: est must be metric (no alignment is needed, RPE is frame-independent).
+    Returns trans_rmse_m, trans_median_m, trans_max_m, rot_rmse_deg, rot_max_deg, n.
+    """
+    ie, ig = _associate(est, gt)
+    E, G = est.T_wc[ie], gt.T_wc[ig]
+    if len(E) <= delta:
+        raise ValueError(f"relative_pose_error: {len(E)} poses, delta {delta}")
+    inv = np.linalg.inv
+    dE = inv(E[:-delta]) @ E[delta:]
+    dG = inv(G[:-delta]) @ G[delta:]
+    D = inv(dG) @ dE
+    tr = np.linalg.norm(D[:, :3, 3], axis=1)
+    rot = _rot_angle_deg(D[:, :3, :3])
+    return {
+        "n": int(len(D)),
+        "delta": int(delta),
+        "trans_rmse_m": float(np.sqrt(np.mean(tr**2))),
+        "trans_median_m": float(np.median(tr)),
+        "trans_max_m": float(tr.max()),
+        "rot_rmse_deg": float(np.sqrt(np.mean(rot**2))),
+        "rot_max_deg": float(rot.max()),
+    }
+
+
+def scale_error(est: Trajectory, gt: Trajectory) -> float:
+    """Relative scale error ``s - 1`` of the similarity aligning est onto gt (0 for a perfectly metric est)."""
+    ie, ig = _associate(est, gt)
+    s, _, _ = align_umeyama(est.centres_m[ie], gt.centres_m[ig], with_scale=True)
+    return float(1.0 / s - 1.0)
+
+
+# ------------------------------------------------------------------------------------------- up
+
+
+def up_from_trajectory(traj: Trajectory, collinear_ratio: float = 0.05) -> np.ndarray:
+    """Ground normal (unit, world frame) from the camera centres of an orbit.
+
+    The normal of the least-squares plane of the centres (smallest singular vector), oriented so
+    that it points against the mean camera +y axis (a camera's y axis points down). When the
+    centres are nearly collinear or too few (second singular value < collinear_ratio of the first),
+    falls back to ``-mean(camera y axis)``.
+    """
+    if len(traj) == 0:
+        raise ValueError("up_from_trajectory: empty trajectory")
+    y_mean = traj.T_wc[:, :3, 1].mean(axis=0)  # camera +y (down) in the world, averaged
+    down = y_mean / max(np.linalg.norm(y_mean), 1e-12)
+    c = traj.centres_m
+    if len(c) >= 3:
+        X = c - c.mean(0)
+        _, sv, Vt = np.linalg.svd(X, full_matrices=False)
+        if sv[0] > 0 and sv[1] > collinear_ratio * sv[0]:
+            n = Vt[2]
+            n = n / np.linalg.norm(n)
+            return -n if n @ down > 0 else n
+    log.debug("up_from_trajectory: centres nearly collinear, using -mean camera y")
+    return -down

@@ -1,0 +1,128 @@
+"""Trajectory container, TUM I/O, Umeyama alignment, ATE/RPE and the 'up' estimate."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from stereo_recon.errors import InputError
+from stereo_recon.trajectory import (
+    Trajectory,
+    absolute_trajectory_error,
+    align_umeyama,
+    read_tum,
+    relative_pose_error,
+    scale_error,
+    up_from_trajectory,
+    write_tum,
+)
+
+
+def _orbit(n=36, radius=5.0, height=3.0, tilt_deg=0.0):
+    """Cameras on a circle around the world z axis, looking at the origin (OpenCV axes, y down)."""
+    T = np.tile(np.eye(4), (n, 1, 1))
+    for k in range(n):
+        th = 2 * np.pi * k / n
+        c = np.array([radius * np.cos(th), radius * np.sin(th), height])
+        z = -c / np.linalg.norm(c)
+        x = np.cross(z, [0, 0, 1.0])
+        x /= np.linalg.norm(x)
+        T[k, :3, :3] = np.column_stack([x, np.cross(z, x), z])
+        T[k, :3, 3] = c
+    if tilt_deg:
+        R = Rotation.from_euler("x", tilt_deg, degrees=True).as_matrix()
+        T[:, :3, :3] = R @ T[:, :3, :3]
+        T[:, :3, 3] = T[:, :3, 3] @ R.T
+    return Trajectory(np.arange(n), np.arange(n) / 15.0, T)
+
+
+def test_tum_round_trip(tmp_path):
+    tr = _orbit()
+    path = write_tum(tmp_path / "poses.txt", tr)
+    back = read_tum(path, fps=15.0)
+    np.testing.assert_array_equal(back.indices, tr.indices)
+    np.testing.assert_allclose(back.timestamps_s, tr.timestamps_s, atol=1e-6)
+    np.testing.assert_allclose(back.T_wc, tr.T_wc, atol=1e-8)
+    first = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")][0].split()
+    # TUM order: timestamp tx ty tz qx qy qz qw (scalar last)
+    q = Rotation.from_matrix(tr.T_wc[0, :3, :3]).as_quat()
+    assert np.allclose([float(v) for v in first[4:]], q, atol=1e-8) or np.allclose(
+        [float(v) for v in first[4:]], -q, atol=1e-8
+    )
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [("0 1 2 3 0 0 0\n", "expected 8"), ("0 1 2 x 0 0 0 1\n", "not a number"), ("# only\n", "no poses"),
+     ("0 1 2 3 0 0 0 0\n", "zero quaternion")],
+)
+def test_read_tum_rejects_bad_files(tmp_path, text, fragment):
+    p = tmp_path / "bad.txt"
+    p.write_text(text)
+    with pytest.raises(InputError, match=fragment):
+        read_tum(p)
+    with pytest.raises(InputError, match="cannot read"):
+        read_tum(tmp_path / "missing.txt")
+
+
+def test_umeyama_recovers_similarity(rng):
+    src = rng.normal(size=(200, 3))
+    R = Rotation.random(random_state=3).as_matrix()
+    s, t = 2.5, np.array([1.0, -2.0, 0.5])
+    noise = 1e-3
+    dst = s * src @ R.T + t + rng.normal(scale=noise, size=src.shape)
+    s_e, R_e, t_e = align_umeyama(src, dst, with_scale=True)
+    assert abs(s_e - s) < 5 * noise
+    assert np.degrees(Rotation.from_matrix(R_e.T @ R).magnitude()) < 0.05
+    assert np.linalg.norm(t_e - t) < 5 * noise * s
+    s1, R1, _ = align_umeyama(src, src @ R.T + t, with_scale=False)
+    assert s1 == 1.0 and np.allclose(R1, R, atol=1e-9)
+
+
+def test_ate_and_rpe_of_transformed_and_perturbed_copies(rng):
+    gt = _orbit()
+    R = Rotation.from_euler("zyx", [30, 10, -5], degrees=True).as_matrix()
+    est = gt.transformed(0.5, R, np.array([3.0, 1.0, -2.0]))
+    ate = absolute_trajectory_error(est, gt, with_scale=True)
+    assert ate["rmse_m"] < 1e-9 and abs(ate["scale"] - 2.0) < 1e-9 and ate["rot_max_deg"] < 1e-6
+    assert abs(scale_error(est, gt) - (0.5 - 1.0)) < 1e-9
+    # A rigid copy has no relative pose error; without scale the ATE sees the halved orbit.
+    rigid = gt.transformed(1.0, R, np.array([3.0, 1.0, -2.0]))
+    rpe = relative_pose_error(rigid, gt)
+    assert rpe["trans_rmse_m"] < 1e-9 and rpe["rot_rmse_deg"] < 1e-6
+    assert absolute_trajectory_error(est, gt, with_scale=False)["rmse_m"] > 1.0
+    # Centre noise of sigma per axis gives an ATE of about sqrt(3) sigma.
+    sigma = 0.01
+    noisy = Trajectory(gt.indices, gt.timestamps_s, gt.T_wc.copy())
+    noisy.T_wc[:, :3, 3] += rng.normal(scale=sigma, size=(len(gt), 3))
+    ate = absolute_trajectory_error(noisy, gt, with_scale=False)
+    assert 0.5 * np.sqrt(3) * sigma < ate["rmse_m"] < 1.5 * np.sqrt(3) * sigma
+    assert abs(ate["rmse_rel_path"] - ate["rmse_m"] / gt.path_length_m()) < 1e-12
+
+
+def test_ate_matches_frames_by_index():
+    gt = _orbit()
+    est = gt.subset(np.arange(0, len(gt), 2))
+    assert absolute_trajectory_error(est, gt)["n"] == len(est)
+    with pytest.raises(ValueError):
+        absolute_trajectory_error(gt.subset([0, 1]), gt)
+
+
+@pytest.mark.parametrize("tilt_deg", [0.0, 25.0])
+def test_up_from_orbit_plane(tilt_deg):
+    tr = _orbit(tilt_deg=tilt_deg)
+    up_true = Rotation.from_euler("x", tilt_deg, degrees=True).as_matrix() @ np.array([0, 0, 1.0])
+    up = up_from_trajectory(tr)
+    assert np.isclose(np.linalg.norm(up), 1.0)
+    assert np.degrees(np.arccos(np.clip(up @ up_true, -1, 1))) < 1e-6
+
+
+def test_up_falls_back_to_camera_y_when_collinear():
+    tr = _orbit()
+    line = Trajectory(tr.indices, tr.timestamps_s, tr.T_wc.copy())
+    line.T_wc[:, :3, 3] = np.outer(np.arange(len(tr)), [1.0, 0.0, 0.0])  # straight pass
+    up = up_from_trajectory(line)
+    expected = -line.T_wc[:, :3, 1].mean(0)
+    assert np.allclose(up, expected / np.linalg.norm(expected))
+    assert up @ np.array([0, 0, 1.0]) > 0.5
