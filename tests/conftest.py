@@ -22,3 +22,21 @@ def shared_data() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def box_on_ground():
+    """Factory: an Open3D ray-casting scene of an axis-aligned box (min, max corners, m) on a square
+    ground slab (top at z = 0, half-size ``ground_half_m``), for exact-depth renders."""
+    o3d = pytest.importorskip("open3d")
+
+    def make(box_min, box_max, ground_half_m: float = 3.0):
+        box = o3d.geometry.TriangleMesh.create_box(*(np.asarray(box_max) - np.asarray(box_min)))
+        box.translate(np.asarray(box_min, dtype=float))
+        ground = o3d.geometry.TriangleMesh.create_box(2 * ground_half_m, 2 * ground_half_m, 0.01)
+        ground.translate([-ground_half_m, -ground_half_m, -0.01])
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(box + ground))
+        return scene
+
+    return make

@@ -9,36 +9,13 @@ o3d = pytest.importorskip("open3d")
 
 from stereo_recon.errors import ConfigError, StageError  # noqa: E402
 from stereo_recon.fusion import FusionConfig, TSDFFusion, estimate_block_count, voxel_size_from_depth  # noqa: E402
+from stereo_recon.synthetic.flight import look_at  # noqa: E402
 
 W, H = 320, 240
 K = np.array([[300.0, 0, 160.0], [0, 300.0, 120.0], [0, 0, 1.0]])
 # Box 1.2 x 0.8 x 0.5 m (not aligned with any voxel grid, so no exact zero crossings), ground z=0.
 BOX_MIN = np.array([-0.6013, -0.4021, 0.0])
 BOX_MAX = np.array([0.6013, 0.4021, 0.5037])
-
-
-def _scene():
-    box = o3d.geometry.TriangleMesh.create_box(*(BOX_MAX - BOX_MIN))
-    box.translate(BOX_MIN)
-    ground = o3d.geometry.TriangleMesh.create_box(4.0, 4.0, 0.01)
-    ground.translate([-2.0, -2.0, -0.01])
-    scene = o3d.t.geometry.RaycastingScene()
-    mesh = box + ground
-    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))
-    return scene
-
-
-def _look_at(centre, target):
-    """World-from-camera pose of an OpenCV camera at centre looking at target, world z up."""
-    z = target - centre
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], 1)
-    T[:3, 3] = centre
-    return T
 
 
 def _render(scene, T_wc):
@@ -53,7 +30,7 @@ def _render(scene, T_wc):
 
 
 def _orbit(n=12, radius=2.5, height=1.6):
-    return [_look_at(np.array([radius * np.cos(a), radius * np.sin(a), height]), np.array([0, 0, 0.25]))
+    return [look_at(np.array([radius * np.cos(a), radius * np.sin(a), height]), np.array([0, 0, 0.25]))
             for a in np.linspace(0, 2 * np.pi, n, endpoint=False)]
 
 
@@ -67,8 +44,8 @@ def _box_distance(p):
     return outside + np.abs(inside)
 
 
-def test_fused_box_points_lie_on_true_surface():
-    scene = _scene()
+def test_fused_box_points_lie_on_true_surface(box_on_ground):
+    scene = box_on_ground(BOX_MIN, BOX_MAX, ground_half_m=2.0)
     voxel = 0.02
     fusion = TSDFFusion(FusionConfig(voxel_m=voxel, depth_max_m=4.0, min_weight=2.0, block_count=64))
     colour = np.full((H, W, 3), (30, 120, 200), np.uint8)  # BGR
@@ -95,16 +72,16 @@ def test_fused_box_points_lie_on_true_surface():
     assert len(mesh.triangles) > 1000
 
 
-def test_refuses_clearly_beyond_memory_budget():
-    scene = _scene()
+def test_refuses_clearly_beyond_memory_budget(box_on_ground):
+    scene = box_on_ground(BOX_MIN, BOX_MAX, ground_half_m=2.0)
     T = _orbit(1)[0]
     fusion = TSDFFusion(FusionConfig(voxel_m=0.004, depth_max_m=4.0, max_memory_gib=0.01))
     with pytest.raises(StageError, match="fusion: .*--voxel-m"):
         fusion.integrate(np.zeros((H, W, 3), np.uint8), _render(scene, T), K, T)
 
 
-def test_roi_excludes_ground_and_derived_voxel():
-    scene = _scene()
+def test_roi_excludes_ground_and_derived_voxel(box_on_ground):
+    scene = box_on_ground(BOX_MIN, BOX_MAX, ground_half_m=2.0)
     T = _orbit(1)[0]
     depth = _render(scene, T)
     v = voxel_size_from_depth(depth, K[0, 0], footprint_px=2.0)
