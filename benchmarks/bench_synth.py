@@ -7,8 +7,9 @@ encode + files) in <= 60 s.
     .venv/bin/python benchmarks/bench_synth.py --pairs 5 --no-sequence
     .venv/bin/python benchmarks/bench_synth.py --pairs 1 --no-sequence     # mostly the accuracy checks
 
-Wall time depends on what else runs on the machine; the CPU time per pair (all threads) is
-printed too, and the 1-minute load average, so a busy machine is visible in the output.
+Wall time depends on what else runs on the machine; the CPU time (all threads of this process)
+is printed too, and the 1-minute load average, so a busy machine is visible in the output. On an
+idle 2-core machine wall ~ CPU / 1.7 (ray casting and both eyes' shading run in parallel).
 """
 
 from __future__ import annotations
@@ -76,8 +77,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"synthetic renderer benchmark: {args.resolution} {rig.image_size[0]}x{rig.image_size[1]} per eye, "
           f"{len(scene.mesh.triangles)} triangles, {os.cpu_count()} CPUs visible, load {_load()}")
     t0 = time.perf_counter()
-    StereoRenderer(scene, rig, RenderConfig())  # ray directions are cached per rig after this
+    StereoRenderer(scene, rig, RenderConfig(shadows=False))  # ray directions are cached per rig after this
     print(f"  setup (per-pixel rays through the distortion, noise buffer): {time.perf_counter() - t0:.2f} s (once per rig)")
+    t0 = time.perf_counter()
+    sm = StereoRenderer(scene, rig, RenderConfig()).shadow_map
+    if sm is not None:
+        print(f"  setup (scene BVH + ground shadow map {sm.lit.shape[1]}x{sm.lit.shape[0]} cells of {1000 * sm.cell_m:.1f} mm, "
+              f"{sm.cast_cells / 1e6:.2f} M cast): {time.perf_counter() - t0:.2f} s (once per scene)")
     print(f"  {'configuration':34s} {'wall s/pair':>12s} {'CPU s/pair':>11s} {'target':>8s}")
     for name, cfg in (("raw, shadows (default)", RenderConfig()), ("raw, no shadows", RenderConfig(shadows=False))):
         r = StereoRenderer(scene, rig, cfg)
@@ -92,16 +98,18 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_sequence:
         tmp = tempfile.mkdtemp(prefix="bench_synth_")
         try:
-            w0 = time.perf_counter()
+            load0 = _load()
+            w0, c0 = time.perf_counter(), time.process_time()
             render_sequence("model-truck", os.path.join(tmp, "seq"), seed=0, frames=args.frames, resolution=args.resolution)
-            wall = time.perf_counter() - w0
+            wall, cpu = time.perf_counter() - w0, time.process_time() - c0
             size = os.path.getsize(os.path.join(tmp, "seq", "video.avi")) / 1e6
             with open(os.path.join(tmp, "seq", "synth_run.json")) as f:
                 stages = json.load(f)["timings_s"]
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
-        print(f"  {args.frames}-frame orbit (render+encode+files)  {wall:8.1f} s   target <= 60 s   "
-              f"(video {size:.1f} MB; {', '.join(f'{k} {v:.1f} s' for k, v in stages.items())})")
+        print(f"  {args.frames}-frame orbit (render+encode+files)  {wall:8.1f} s wall  {cpu:6.1f} s CPU   target <= 60 s wall   "
+              f"(load {load0} -> {_load()}; video {size:.1f} MB; {', '.join(f'{k} {v:.1f} s' for k, v in stages.items())}; "
+              f"'encode' = waiting for the background encoder)")
     if not args.no_accuracy:
         _accuracy(args.resolution)
     print(f"  load average after: {_load()}")

@@ -227,6 +227,18 @@ def render_sequence(preset: str, out_dir, seed: int = 0, frames: int | None = No
             writer = _open_writer(video, video_format, fps, (2 * w, h), int(jpeg_quality))
             if depth:
                 (tmp / "depth").mkdir()
+            # JPEG encoding and file writes of frame i run in one background thread while frame i+1
+            # renders (frames are written in order, so the bytes do not depend on the timing).
+            from concurrent.futures import ThreadPoolExecutor
+
+            encoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="synth-encode")
+
+            def emit(i: int, pair) -> None:
+                writer.write(np.hstack([pair.left, pair.right]))
+                if depth:
+                    np.save(tmp / "depth" / f"{i:06d}.npy", pair.depth_left_m)
+
+            pending = None
             try:
                 for i in range(n):
                     if p.kind == "calibration-board" and i > 0:
@@ -234,13 +246,17 @@ def render_sequence(preset: str, out_dir, seed: int = 0, frames: int | None = No
                         renderer.set_scene(scene_i)
                     with sw.stage("render"):
                         pair = renderer.render(poses[i], rng=noise_rng, exposure=float(expo[i]))
-                    with sw.stage("encode"):
-                        writer.write(np.hstack([pair.left, pair.right]))
-                    if depth:
-                        np.save(tmp / "depth" / f"{i:06d}.npy", pair.depth_left_m)
+                    with sw.stage("encode"):  # the wait for the previous frame's encode (overlapped with this render)
+                        if pending is not None:
+                            pending.result()
+                        pending = encoder.submit(emit, i, pair)
                     if (i + 1) % 10 == 0:
                         log.info("rendered %d/%d frames", i + 1, n)
+                with sw.stage("encode"):
+                    if pending is not None:
+                        pending.result()
             finally:
+                encoder.shutdown(wait=True)
                 writer.release()
                 renderer.close()
             with sw.stage("write"):
