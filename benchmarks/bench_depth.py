@@ -16,16 +16,20 @@ Accuracy: bad-2.0 (|error| > 2 px, holes bad, non-occluded mask) on the Middlebu
 plain SGBM vs each preset (NOTES: plain = 19.0 % on average).
 
 End to end (optional): ``--reconstruct SYNTH_DIR [--poses vo|sfm|gt]`` runs ``reconstruct`` on a synth folder and
-reports frames/s, ATE, and (when the folder has depth/ from ``synth --depth``) the truck cloud's median
-point-to-surface distance and coverage against the rendered depth.
+reports processed frames/s (target >= 4 for the VO path), CPU time, ATE, scale error, and (when the folder has
+depth/ from ``synth --depth``) the truck cloud's median point-to-surface distance and coverage against the
+rendered depth; then bare cv2 SGBM alone on the same frames, side by side. ``--compare-legacy`` also runs the
+pre-speed-up path (SGBM for VO on every frame, image-motion keyframes, full-resolution fusion).
 
 Run:  .venv/bin/python benchmarks/bench_depth.py [--frames 120] [--video V --calib C] [--preset balanced]
-      .venv/bin/python benchmarks/bench_depth.py --skip-speed --skip-accuracy --reconstruct DIR --poses vo
+      .venv/bin/python benchmarks/bench_depth.py --skip-speed --skip-accuracy --reconstruct DIR --poses vo [--compare-legacy]
+      (DIR from ``stereo-recon synth --preset model-truck --out DIR --frames 120 --depth``)
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -166,6 +170,28 @@ def _bench_2003(args, names) -> None:
         print(f"{n:10s}" + "".join(f"{v:10.1f}" for v in row))
 
 
+def _bare_sgbm_on_video(video: Path, frames: int | None, d_num: int) -> tuple[float, int]:
+    """Wall seconds of bare cv2 SGBM (plain reference settings, colour, raw frames) on the video's frames."""
+    import cv2
+
+    from stereo_recon.disparity import make_matcher, preset
+    from stereo_recon.video import open_stereo_source
+
+    matcher = make_matcher(preset("plain", num_disparities_px=d_num), 3)
+    t, n = 0.0, 0
+    for fr in open_stereo_source(video, (0, frames) if frames else None):
+        t0 = time.perf_counter()
+        matcher.compute(fr.left, fr.right)
+        t += time.perf_counter() - t0
+        n += 1
+    return t, n
+
+
+# ReconstructConfig overrides that restore the pre-speed-up VO path: SGBM depth for VO on every frame,
+# image-motion keyframes, full-resolution fusion up to the configured depth limit.
+LEGACY = dict(fuse_by_pose=False, vo_dense_depth=True, fusion_min_width_px=None, fusion_depth_max_rel=None)
+
+
 def bench_reconstruct(args) -> dict:
     """End to end on a synth folder (video.avi, rig.yaml, poses_gt.txt, truth.json[, depth/]): time, ATE, cloud."""
     import json
@@ -174,32 +200,60 @@ def bench_reconstruct(args) -> dict:
     import cv2
 
     from calib.io import load_rig
+    from stereo_recon.disparity import disparity_range_for_depth
     from stereo_recon.reconstruct import ReconstructConfig, reconstruct
-    from stereo_recon.trajectory import absolute_trajectory_error, read_tum
+    from stereo_recon.trajectory import absolute_trajectory_error, read_tum, scale_error
 
     d = Path(args.reconstruct)
     truth = json.loads((d / "truth.json").read_text())
     rig = load_rig(d / "rig.yaml")
     poses = f"gt:{d / 'poses_gt.txt'}" if args.poses == "gt" else args.poses
-    cfg = ReconstructConfig(poses=poses, depth_min_m=args.depth_min_m, depth_max_m=args.depth_max_m,
-                            disparity_preset=args.preset)
-    out = Path(tempfile.mkdtemp(prefix="bench_recon_")) / "out"
-    t0 = time.perf_counter()
-    man = reconstruct(d / "video.avi", rig, out, cfg)
-    wall = time.perf_counter() - t0
-    n = man["counts"]["frames_read"]
+    variants = {"new": {}}
+    if args.compare_legacy:
+        variants["legacy"] = LEGACY
     gt = read_tum(d / "poses_gt.txt", fps=truth["fps"])
-    est = read_tum(out / "poses.txt", fps=truth["fps"])
-    ate = absolute_trajectory_error(est, gt, with_scale=False)
-    print(f"\n== reconstruct {d} ({n} frames, poses {args.poses}, preset {args.preset}) ==")
-    print(f"wall {wall:.1f} s = {n / wall:.2f} frames/s; stages: "
-          + ", ".join(f"{k} {v:.1f}s" for k, v in man["timings_s"].items()))
-    print(f"ATE rmse {ate['rmse_m'] * 1000:.1f} mm = {100 * ate['rmse_rel_path']:.3f} % of the {ate['path_length_m']:.2f} m path;"
-          f" {man['counts']['keyframes_fused']} keyframes fused, {man['counts']['cloud_points']} points,"
-          f" voxel {man['voxel_m'] * 1000:.1f} mm, TSDF {man['fusion']['memory_gib']:.2f} GiB")
-    if not (d / "depth").is_dir():
-        print("(no depth/ folder: render with `stereo-recon synth ... --depth` for cloud accuracy and coverage)")
-        return {"fps": n / wall, "ate": ate}
+    results = {}
+    for name, over in variants.items():
+        cfg = ReconstructConfig(poses=poses, depth_min_m=args.depth_min_m, depth_max_m=args.depth_max_m,
+                                disparity_preset=args.preset, **over)
+        out = Path(tempfile.mkdtemp(prefix="bench_recon_")) / "out"
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        man = reconstruct(d / "video.avi", rig, out, cfg)
+        wall = time.perf_counter() - t0
+        cpu = time.process_time() - c0
+        n = man["counts"]["frames_read"]
+        est = read_tum(out / "poses.txt", fps=truth["fps"])
+        ate = absolute_trajectory_error(est, gt, with_scale=False)
+        r = {"fps": n / wall, "wall_s": wall, "cpu_s": cpu, "frames": n, "ate": ate, "scale_err": scale_error(est, gt)}
+        print(f"\n== reconstruct [{name}] {d} ({n} frames, poses {args.poses}, preset {args.preset}) ==")
+        print(f"wall {wall:.1f} s = {n / wall:.2f} processed frames/s (target >= 4), CPU {cpu:.1f} s "
+              f"(load average {os.getloadavg()[0]:.1f}); stages: "
+              + ", ".join(f"{k} {v:.1f}s" for k, v in man["timings_s"].items()))
+        print(f"ATE rmse {ate['rmse_m'] * 1000:.1f} mm = {100 * ate['rmse_rel_path']:.3f} % of the {ate['path_length_m']:.2f} m "
+              f"path (target <= 1 %); scale error {100 * r['scale_err']:+.3f} % (target |.| <= 0.5 %); "
+              f"{man['counts']['keyframes_fused']} views fused, {man['counts']['frames_depth']} SGBM maps, "
+              f"{man['counts']['cloud_points']} points, voxel {man['voxel_m'] * 1000:.1f} mm, TSDF "
+              f"{man['fusion']['memory_gib']:.2f} GiB")
+        if (d / "depth").is_dir():
+            r.update(_cloud_scores(args, d, truth, rig, gt, est, out))
+        results[name] = r
+    # Bare OpenCV on the same frames, measured in the same run (machine load hits both alike).
+    rect = rig.rectification(alpha=0.0)
+    _, d_num = disparity_range_for_depth(rect.focal_px, rect.baseline_m, args.depth_min_m, args.depth_max_m, 256)
+    t_bare, n_bare = _bare_sgbm_on_video(d / "video.avi", None, d_num)
+    print(f"\n== side by side ({n_bare} frames, load average {os.getloadavg()[0]:.1f}) ==")
+    print(f"{'':40s}{'wall s':>10s}{'frames/s':>10s}")
+    for name, r in results.items():
+        print(f"{'reconstruct --poses ' + args.poses + ' [' + name + '] e2e':40s}{r['wall_s']:10.1f}{r['fps']:10.2f}")
+    print(f"{'bare cv2 SGBM only (plain, ' + str(d_num) + ' disp.)':40s}{t_bare:10.1f}{n_bare / t_bare:10.2f}")
+    results["bare_sgbm"] = {"wall_s": t_bare, "fps": n_bare / t_bare}
+    return results
+
+
+def _cloud_scores(args, d, truth, rig, gt, est, out) -> dict:
+    """Truck cloud vs the rendered depth: median point-to-surface distance and coverage."""
+    import cv2
     from scipy.spatial import cKDTree
     import open3d as o3d
 
@@ -238,7 +292,7 @@ def bench_reconstruct(args) -> dict:
     print(f"truck points {len(ours)}: median distance to the true surface {1000 * np.median(acc):.1f} mm = "
           f"{100 * np.median(acc) / L:.2f} % of L (target <= 0.5 %); coverage of the visible truck surface "
           f"{100 * cov:.1f} % (target >= 90 %)")
-    return {"fps": n / wall, "ate": ate, "acc_rel": float(np.median(acc) / L), "coverage": float(cov)}
+    return {"acc_rel": float(np.median(acc) / L), "coverage": float(cov)}
 
 
 def main(argv=None) -> int:
@@ -254,8 +308,10 @@ def main(argv=None) -> int:
     ap.add_argument("--reconstruct", metavar="SYNTH_DIR",
                     help="also run reconstruct end to end on a `stereo-recon synth` folder and score it")
     ap.add_argument("--poses", default="vo", help="pose back-end for --reconstruct: vo, sfm or gt")
-    ap.add_argument("--depth-min-m", type=float, default=0.5)
-    ap.add_argument("--depth-max-m", type=float, default=4.0)
+    ap.add_argument("--compare-legacy", action="store_true",
+                    help="also run --reconstruct the pre-speed-up way (SGBM on every frame, full-resolution fusion)")
+    ap.add_argument("--depth-min-m", type=float, default=0.3, help="for --reconstruct (default 0.3, as the CLI)")
+    ap.add_argument("--depth-max-m", type=float, default=20.0, help="for --reconstruct (default 20, as the CLI)")
     ap.add_argument("--skip-accuracy", action="store_true")
     args = ap.parse_args(argv)
     if args.fill_max_px is not None and args.fill_max_px < 0:
