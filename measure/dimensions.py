@@ -42,6 +42,8 @@ class DimensionConfig:
     roof_min_points: int = 20
     wall_min_share: float = 0.85       # peak-to-peak width must be >= this x the robust extent, else fallback
     wall_min_mass: float = 0.02        # a weaker outer peak counts as a wall when it holds this share of points
+    shoulder_excess: float = 1.5       # points outside a wall peak count as a wider part (a shoulder) when
+                                       # they outnumber the mirrored band inside the wall by this factor
     bootstrap: int = 30                # Poisson-bootstrap replicates for the uncertainties
     grid_bins: int = 4096              # bins over a projection's range (capped resolution of the KDE)
 
@@ -86,16 +88,25 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
         # A wider part just outside a wall (a cab wider than the box by less than the noise
         # can separate) shows as a shoulder: more points beyond the peak than its own noise
         # tail holds. Then that side's edge is the robust extreme, corrected for the noise.
+        # The wall's own scatter can exceed the noise measured on the ground (a weakly textured
+        # panel seen at a slant), so a tail counts as a shoulder only when it holds clearly more
+        # points than the same band mirrored to the inside of the wall (which holds the wall's
+        # inner tail plus roof points; a symmetric scatter never fires).
         s_eff = float(np.hypot(noise, h))
+        d = 2.5 * s_eff
         cum = np.cumsum(counts)
         tot = cum[-1]
-        out_hi = (tot - np.interp(e1 + 2.5 * s_eff, grid, cum)) / tot
-        out_lo = np.interp(e0 - 2.5 * s_eff, grid, cum) / tot
+
+        def band_mass(a: float, b: float) -> float:
+            return float(np.interp(b, grid, cum) - np.interp(a, grid, cum)) / tot
+
         rule = "kde_two_peaks"
-        if out_hi >= cfg.wall_min_mass and hi > e1 + 2.5 * s_eff:
+        out_hi, in_hi = band_mass(e1 + d, hi), band_mass(e1 - (hi - e1), e1 - d)
+        out_lo, in_lo = band_mass(lo, e0 - d), band_mass(e0 + d, e0 + (e0 - lo))
+        if out_hi >= cfg.wall_min_mass and hi > e1 + d and out_hi > cfg.shoulder_excess * in_hi:
             e1 = max(e1, hi - _noise_shift(cfg.extreme_fraction, out_hi, noise))
             rule = "kde_peaks_plus_outer_shoulder"
-        if out_lo >= cfg.wall_min_mass and lo < e0 - 2.5 * s_eff:
+        if out_lo >= cfg.wall_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * in_lo:
             e0 = min(e0, lo + _noise_shift(cfg.extreme_fraction, out_lo, noise))
             rule = "kde_peaks_plus_outer_shoulder"
         return e1 - e0, rule, (e0, e1), dens

@@ -15,6 +15,7 @@ bad, non-occluded mask; ``benchmarks/bench_depth.py``): plain SGBM 19.0 %, prese
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from dataclasses import dataclass, fields, replace
@@ -69,6 +70,14 @@ class DisparityConfig:
     fill_max_px: int | None = None
     # Median filter on the final map (0 = off, 3 or 5; OpenCV supports only these for float images).
     median_px: int = 5
+    # Sub-pixel refinement window (odd px; None = off): a Lucas-Kanade fit of the disparity (plus a
+    # brightness offset) over this window around each SGBM match. SGBM's parabola interpolation
+    # locks to integers and its smoothness term lags along its aggregation paths on weak texture
+    # (-0.1..-0.2 px on painted panels: surfaces fused several mm too far); the fit removes both.
+    subpixel_window_px: int | None = 9
+    # Gauss-Newton steps of that fit, and the largest total change it may make (px).
+    subpixel_iterations: int = 1
+    subpixel_max_step_px: float = 1.0
 
     def __post_init__(self) -> None:
         if self.mode not in _MODES:
@@ -77,6 +86,8 @@ class DisparityConfig:
             raise ConfigError(f"block_size_px={self.block_size_px}: must be a positive odd number")
         if self.num_disparities_px < 16:
             raise ConfigError(f"num_disparities_px={self.num_disparities_px}: must be >= 16")
+        if self.subpixel_window_px is not None and (self.subpixel_window_px < 3 or self.subpixel_window_px % 2 == 0):
+            raise ConfigError(f"subpixel_window_px={self.subpixel_window_px}: must be an odd number >= 3 (or None)")
         if self.median_px not in (0, 1, 3, 5):
             raise ConfigError(f"median_px={self.median_px}: must be 0, 3 or 5")
         if not 0 <= self.pre_filter_cap <= 63:
@@ -91,7 +102,8 @@ class DisparityConfig:
 # Named presets. Timings are relative to bare cv2 SGBM (3-way, block 5, colour) on the same frames.
 PRESETS: dict[str, dict] = {
     # No median; SGBM's internal LR check only; fill holes. Cheapest.
-    "fast": dict(block_size_px=3, mode="sgbm3way", median_px=0, speckle_window_px=100, speckle_range_px=2),
+    "fast": dict(block_size_px=3, mode="sgbm3way", median_px=0, speckle_window_px=100, speckle_range_px=2,
+                 subpixel_window_px=None),
     # The default: grey 3-way SGBM, block 3, speckle 200/1, background fill + 5x5 median.
     "balanced": dict(),
     # 4-path full-resolution dynamic programming (HH4): ~2x slower, ~1 point better on Middlebury.
@@ -99,7 +111,7 @@ PRESETS: dict[str, dict] = {
     # Plain OpenCV SGBM as in the reference numbers (3-way, block 5, colour, P1=8*3*25, P2=32*3*25,
     # uniqueness 10, speckle 100/2, disp12MaxDiff 1), no post-processing: the baseline to beat.
     "plain": dict(block_size_px=5, use_color=True, pre_filter_cap=0, speckle_window_px=100, speckle_range_px=2,
-                  fill_holes=False, median_px=0),
+                  fill_holes=False, median_px=0, subpixel_window_px=None),
     # WLS-smoothed (ximgproc, right matcher + confidence): smoother surfaces, 2x the matching time,
     # 12.2 % on Middlebury (worse than "balanced": WLS smears across occlusion boundaries).
     "wls": dict(wls_lambda=2000.0, wls_sigma_color=1.5),
@@ -259,11 +271,79 @@ def disparity_map(left_rect_gray: np.ndarray, right_rect_gray: np.ndarray,
             raw_right, _ = _right_disparity(matcher, left, right)
             disp = _lr_consistency(disp, raw_right.astype(np.float32) / -16.0, config.lr_check_px)
 
+    if config.subpixel_window_px is not None:
+        disp = refine_subpixel(left, right, disp, config.subpixel_window_px, config.subpixel_iterations,
+                               config.subpixel_max_step_px)
     if config.fill_holes:
         disp = fill_holes_background(disp, config.fill_max_px)
     if config.median_px in (3, 5):
         disp = _median_valid(disp, config.median_px)
     return disp
+
+
+@functools.lru_cache(maxsize=4)
+def _pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Column and row coordinates (H, W) float32 of every pixel (cached: built once per image size)."""
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    xs.flags.writeable = False
+    ys.flags.writeable = False
+    return xs, ys
+
+
+def refine_subpixel(left: np.ndarray, right: np.ndarray, disp_px: np.ndarray, window_px: int = 9,
+                    iterations: int = 1, max_step_px: float = 1.0) -> np.ndarray:
+    """Refine a disparity map to sub-pixel accuracy by a windowed Lucas-Kanade fit along the rows.
+
+    left, right: rectified (H, W) grey or (H, W, 3) uint8 images; disp_px: (H, W) float32 left
+    disparity (px, x_right = x_left - d), NaN = invalid. Per pixel, minimises
+    sum_window (L(x) - R(x - d) - b)^2 over d and a brightness offset b, starting at the SGBM
+    value. Pixels whose window straddles a disparity step (> 1.5 px range), has too little
+    horizontal gradient, or would move by more than ``max_step_px`` keep their input value.
+    Returns a new float32 map (NaN where the input is NaN).
+
+    Written by hand because OpenCV offers no refinement of a given disparity map against the
+    images (its ximgproc filters smooth disparities; they do not re-fit them to the data).
+    """
+    import cv2
+
+    L = (cv2.cvtColor(left, cv2.COLOR_BGR2GRAY) if left.ndim == 3 else left).astype(np.float32)
+    R = (cv2.cvtColor(right, cv2.COLOR_BGR2GRAY) if right.ndim == 3 else right).astype(np.float32)
+    d0 = np.asarray(disp_px, dtype=np.float32)
+    valid = np.isfinite(d0)
+    if not valid.any():
+        return d0.copy()
+    h, w = d0.shape
+    k = (int(window_px), int(window_px))
+    gx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)  # central difference, per px
+    # Disparity range within the window: refine only where the window sees one surface.
+    big = np.float32(1e6)
+    kernel = np.ones(k, np.uint8)
+    dmax = cv2.dilate(np.where(valid, d0, -big), kernel)
+    dmin = cv2.erode(np.where(valid, d0, big), kernel)
+    ok = valid & (dmax - dmin <= 1.5)
+    n = float(k[0] * k[1])
+    xs, ys = _pixel_grid(h, w)
+    d = np.where(valid, d0, 0).astype(np.float32)
+    for _ in range(max(int(iterations), 0)):
+        mx = xs - d
+        rw = cv2.remap(R, mx, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        g = cv2.remap(gx, mx, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        e = L - rw
+        # Residual e + g*delta - b; normal equations of (delta, b), window sums by box filters.
+        sgg = cv2.boxFilter(g * g, -1, k, normalize=False)
+        sg = cv2.boxFilter(g, -1, k, normalize=False)
+        sge = cv2.boxFilter(g * e, -1, k, normalize=False)
+        se = cv2.boxFilter(e, -1, k, normalize=False)
+        det = n * sgg - sg * sg
+        strong = det > n * n * 4.0  # mean centred gradient^2 >= 4 (grey levels/px)^2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            delta = (-n * sge + sg * se) / det
+        step_ok = ok & strong & np.isfinite(delta)
+        d = np.where(step_ok, d + delta, d)
+        ok &= np.abs(d - np.where(valid, d0, 0)) <= max_step_px
+    out = np.where(ok, d, d0).astype(np.float32)
+    out[~valid] = np.nan
+    return out
 
 
 def _lr_consistency(disp_left: np.ndarray, disp_right: np.ndarray, max_diff_px: float) -> np.ndarray:

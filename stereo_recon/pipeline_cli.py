@@ -71,7 +71,9 @@ def _print_summary(s: dict) -> None:
           f"width {s['width_m']:.3f} m ± {u.get('width', float('nan')):.3f}   "
           f"height {s['height_m']:.3f} m ± {u.get('height', float('nan')):.3f}")
     if isinstance(v, dict):
-        print(f"verdict ({v.get('regulation', '?')}): {v.get('overall', '?')}" + (f" — {v['reason']}" if v.get("reason") else ""))
+        reg = v.get("regulation", "?")
+        reg = reg.get("name", "?") if isinstance(reg, dict) else reg
+        print(f"verdict ({reg}): {v.get('overall', '?')}" + (f" — {v['reason']}" if v.get("reason") else ""))
     print(f"report: {Path(s['out_dir']) / 'report.html'}")
 
 
