@@ -42,8 +42,8 @@ class DimensionConfig:
     roof_min_points: int = 20
     wall_min_share: float = 0.85       # peak-to-peak width must be >= this x the robust extent, else fallback
     wall_min_mass: float = 0.02        # a weaker outer peak counts as a wall when it holds this share of points
-    shoulder_excess: float = 1.5       # points outside a wall peak count as a wider part (a shoulder) when
-                                       # they outnumber the mirrored band inside the wall by this factor
+    shoulder_excess: float = 2.0       # points outside a wall peak count as a wider part (a shoulder) when
+                                       # they are this many times what the wall's own scatter puts there
     bootstrap: int = 30                # Poisson-bootstrap replicates for the uncertainties
     grid_bins: int = 4096              # bins over a projection's range (capped resolution of the KDE)
 
@@ -83,15 +83,20 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
     mid = 0.5 * (lo + hi)
     left = pos[pos < mid] if len(pos) else pos
     right = pos[pos > mid] if len(pos) else pos
-    if len(left) and len(right) and right.max() - left.min() >= cfg.wall_min_share * extent:
+    # Walls must span most of the cloud's extent, measured between 1 % quantiles: a fused cloud's thin
+    # tails of stray points must not make real walls look like interior structure.
+    q_lo, q_hi = _robust_extremes(counts, grid, 10 * cfg.extreme_fraction)
+    core = q_hi - q_lo
+    if len(left) and len(right) and right.max() - left.min() >= cfg.wall_min_share * core:
         e0, e1 = float(left.min()), float(right.max())
         # A wider part just outside a wall (a cab wider than the box by less than the noise
         # can separate) shows as a shoulder: more points beyond the peak than its own noise
         # tail holds. Then that side's edge is the robust extreme, corrected for the noise.
-        # The wall's own scatter can exceed the noise measured on the ground (a weakly textured
-        # panel seen at a slant), so a tail counts as a shoulder only when it holds clearly more
-        # points than the same band mirrored to the inside of the wall (which holds the wall's
-        # inner tail plus roof points; a symmetric scatter never fires).
+        # A wider part just outside a wall (a cab wider than the box, a flatbed's deck beside its
+        # load) by less than the noise can separate shows as a shoulder: more points beyond the
+        # peak than the wall's own scatter puts there. The wall's scatter is read off its outer
+        # flank (a weakly textured panel seen at a slant scatters more than the ground's noise
+        # says); a tail within it is the wall's, not a shoulder.
         s_eff = float(np.hypot(noise, h))
         d = 2.5 * s_eff
         cum = np.cumsum(counts)
@@ -100,19 +105,30 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
         def band_mass(a: float, b: float) -> float:
             return float(np.interp(b, grid, cum) - np.interp(a, grid, cum)) / tot
 
+        def wall_tail(e: float, side: int) -> float:
+            """Share of all points the wall at e (m) puts beyond e + side*d, if its profile is Gaussian."""
+            from scipy.stats import norm
+
+            i = int(np.clip(np.searchsorted(grid, e), 0, len(grid) - 1))
+            j = i
+            while 0 <= j + side < len(dens) and dens[j] > 0.5 * dens[i]:
+                j += side
+            sigma = max(float(np.sqrt(max((abs(grid[j] - grid[i]) / 1.1774) ** 2 - h * h, 0.0))), s_eff)
+            wall = band_mass(e - 2 * sigma, e + 2 * sigma) / 0.954
+            return wall * float(norm.sf(d / sigma))
+
         rule = "kde_two_peaks"
-        out_hi, in_hi = band_mass(e1 + d, hi), band_mass(e1 - (hi - e1), e1 - d)
-        out_lo, in_lo = band_mass(lo, e0 - d), band_mass(e0 + d, e0 + (e0 - lo))
-        if out_hi >= cfg.wall_min_mass and hi > e1 + d and out_hi > cfg.shoulder_excess * in_hi:
+        out_hi, out_lo = band_mass(e1 + d, hi), band_mass(lo, e0 - d)
+        if out_hi >= cfg.wall_min_mass and hi > e1 + d and out_hi > cfg.shoulder_excess * wall_tail(e1, +1):
             e1 = max(e1, hi - _noise_shift(cfg.extreme_fraction, out_hi, noise))
             rule = "kde_peaks_plus_outer_shoulder"
-        if out_lo >= cfg.wall_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * in_lo:
+        if out_lo >= cfg.wall_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * wall_tail(e0, -1):
             e0 = min(e0, lo + _noise_shift(cfg.extreme_fraction, out_lo, noise))
             rule = "kde_peaks_plus_outer_shoulder"
         return e1 - e0, rule, (e0, e1), dens
-    if len(right) and right.max() - lo >= cfg.wall_min_share * extent:
+    if len(right) and right.max() - lo >= cfg.wall_min_share * core:
         return float(right.max() - lo), "one_peak_plus_extreme", (lo, float(right.max())), dens
-    if len(left) and hi - left.min() >= cfg.wall_min_share * extent:
+    if len(left) and hi - left.min() >= cfg.wall_min_share * core:
         return float(hi - left.min()), "one_peak_plus_extreme", (float(left.min()), hi), dens
     return float(extent), "robust_extent", (lo, hi), dens
 

@@ -70,10 +70,21 @@ def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int 
         **summary,
         "preset": preset,
         "truth": {d: truth[f"{d}_m"] for d in DIMS},
-        "expected_verdict": truth.get("expected_verdict") or truth.get("over_limit_expected"),
+        "expected_verdict": (truth.get("over_limit_expectation") or {}).get("verdict"),
         "error_pct": err_pct,
         "render_time_s": render_s,
     }
+
+
+# truth.json's over-limit expectation (synthetic presets) -> the measure's overall verdict.
+_EXPECTED_TO_VERDICT = {"over-limit": "over", "within-limits": "within", "not-applicable": "not-applicable"}
+
+
+def verdict_matches(expected: str | None, got: str | None) -> bool | None:
+    """Whether the measured overall verdict is the one the scene's truth expects (None: no expectation)."""
+    if expected is None:
+        return None
+    return _EXPECTED_TO_VERDICT.get(expected, expected) == got
 
 
 def table_markdown(results: Sequence[dict]) -> str:

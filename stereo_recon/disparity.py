@@ -68,6 +68,9 @@ class DisparityConfig:
     fill_holes: bool = True
     # Fill only gaps up to this width (px); None fills every gap (including the left border band).
     fill_max_px: int | None = None
+    # Gaps whose ends differ by at most this (px, + 0.1 px per px of gap) lie on one surface and are
+    # interpolated, not filled with the farther end (None: always the farther end).
+    fill_same_surface_px: float | None = 1.0
     # Median filter on the final map (0 = off, 3 or 5; OpenCV supports only these for float images).
     median_px: int = 5
     # Sub-pixel refinement window (odd px; None = off): a Lucas-Kanade fit of the disparity (plus a
@@ -183,12 +186,17 @@ def _prepare(img: np.ndarray, use_color: bool) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
 
 
-def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None) -> np.ndarray:
+def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
+                          same_surface_px: float | None = None) -> np.ndarray:
     """Fill NaN runs in each row with the smaller of the two bounding valid disparities.
 
     disp_px: (H, W) float32, NaN = invalid. Occluded pixels belong to the background, which
     has the smaller disparity, so taking the lower neighbour is the classic occlusion fill.
-    Runs longer than ``max_gap_px`` (None = no limit) stay NaN. Returns a new array.
+    Runs longer than ``max_gap_px`` (None = no limit) stay NaN. When ``same_surface_px`` is
+    given, a run whose two neighbours differ by at most that plus 0.1 px per px of run length
+    (one surface, e.g. unmatched weak texture on a slanted panel, not an occlusion) is filled
+    by linear interpolation instead: the lower neighbour would put the whole run too far.
+    Returns a new array.
     """
     d = np.asarray(disp_px, dtype=np.float32)
     h, w = d.shape
@@ -209,6 +217,11 @@ def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None) ->
     d_left = np.where(lc >= 0, flat[row0 + np.maximum(lc, 0)], np.inf)
     d_right = np.where(rc < w, flat[row0 + np.minimum(rc, w - 1)], np.inf)
     fill = np.minimum(d_left, d_right)
+    if same_surface_px is not None:
+        gap = (rc - lc).astype(np.float32)
+        one = np.isfinite(d_left) & np.isfinite(d_right) & (np.abs(d_left - d_right) <= same_surface_px + 0.1 * gap)
+        t = ((holes % w) - lc).astype(np.float32) / np.maximum(gap, 1.0)
+        fill = np.where(one, d_left + t * (d_right - d_left), fill)
     if max_gap_px is not None:
         fill[(rc - lc - 1) > max_gap_px] = np.inf  # run length between the two valid neighbours
     fill[~np.isfinite(fill)] = np.nan
@@ -275,7 +288,7 @@ def disparity_map(left_rect_gray: np.ndarray, right_rect_gray: np.ndarray,
         disp = refine_subpixel(left, right, disp, config.subpixel_window_px, config.subpixel_iterations,
                                config.subpixel_max_step_px)
     if config.fill_holes:
-        disp = fill_holes_background(disp, config.fill_max_px)
+        disp = fill_holes_background(disp, config.fill_max_px, config.fill_same_surface_px)
     if config.median_px in (3, 5):
         disp = _median_valid(disp, config.median_px)
     return disp

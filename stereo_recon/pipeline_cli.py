@@ -125,7 +125,7 @@ def _cmd_batch(args) -> int:
 
 def _cmd_bench(args) -> int:
     from stereo_recon.batch import Job, run_jobs
-    from stereo_recon.bench import bench_one, bench_summary, parse_truck_range, run_study, table_markdown, write_bench
+    from stereo_recon.bench import bench_one, bench_summary, parse_truck_range, run_study, table_markdown, verdict_matches, write_bench
 
     out = args.out
     trucks = parse_truck_range(args.trucks)
@@ -157,7 +157,8 @@ def _cmd_bench(args) -> int:
             if r["ok"]:
                 got = (r.get("verdict") or {}).get("overall")
                 print(f"{r['name']}: L {r['length_m']:.2f} W {r['width_m']:.2f} H {r['height_m']:.2f} m, "
-                      f"errors {r['error_pct']['overall']:.2f}% avg, verdict {got} (expected {r.get('expected_verdict')})")
+                      f"errors {r['error_pct']['overall']:.2f}% avg, verdict {got} (truth expects "
+                      f"{r.get('expected_verdict')}: {'right' if verdict_matches(r.get('expected_verdict'), got) else 'WRONG'})")
     if args.study:
         clouds = []
         for r in model:
