@@ -119,11 +119,33 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
 
         rule = "kde_two_peaks"
         out_hi, out_lo = band_mass(e1 + d, hi), band_mass(lo, e0 - d)
+        def shoulder_edge(e: float, side: int) -> float:
+            """Outer edge of the shoulder beyond e (m), scanning outwards from e + side*d: its outermost
+            peak of at least half its height, else where its density falls to half its height (a
+            blurred step's true position)."""
+            i = int(np.clip(np.searchsorted(grid, e + side * d), 0, len(grid) - 1))
+            j_end = len(grid) - 1 if side > 0 else 0
+            seg = dens[i:j_end + 1] if side > 0 else dens[j_end:i + 1][::-1]
+            top = float(seg.max()) if len(seg) else 0.0
+            # A thin outer surface (a deck's edge face, a cab wall) is a peak: take it where it is.
+            pk_out = [k for k in range(1, len(seg) - 1)
+                      if seg[k] >= seg[k - 1] and seg[k] > seg[k + 1] and seg[k] >= 0.5 * top]
+            if pk_out:
+                return refine_peak(grid, dens, int(i + side * pk_out[-1]))
+            above = np.flatnonzero(seg >= 0.5 * top)
+            k = int(above[-1]) if len(above) else 0
+            j = i + side * k
+            # Interpolate the half-height crossing between j and the next bin outwards.
+            jn = int(np.clip(j + side, 0, len(grid) - 1))
+            a, b = float(dens[j]), float(dens[jn])
+            f = (a - 0.5 * top) / (a - b) if a > b else 0.0
+            return float(grid[j] + side * f * abs(grid[jn] - grid[j]))
+
         if out_hi >= cfg.wall_min_mass and hi > e1 + d and out_hi > cfg.shoulder_excess * wall_tail(e1, +1):
-            e1 = max(e1, hi - _noise_shift(cfg.extreme_fraction, out_hi, noise))
+            e1 = max(e1, shoulder_edge(e1, +1))
             rule = "kde_peaks_plus_outer_shoulder"
         if out_lo >= cfg.wall_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * wall_tail(e0, -1):
-            e0 = min(e0, lo + _noise_shift(cfg.extreme_fraction, out_lo, noise))
+            e0 = min(e0, shoulder_edge(e0, -1))
             rule = "kde_peaks_plus_outer_shoulder"
         return e1 - e0, rule, (e0, e1), dens
     if len(right) and right.max() - lo >= cfg.wall_min_share * core:

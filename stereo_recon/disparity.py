@@ -219,9 +219,11 @@ def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
     fill = np.minimum(d_left, d_right)
     if same_surface_px is not None:
         gap = (rc - lc).astype(np.float32)
-        one = np.isfinite(d_left) & np.isfinite(d_right) & (np.abs(d_left - d_right) <= same_surface_px + 0.1 * gap)
         t = ((holes % w) - lc).astype(np.float32) / np.maximum(gap, 1.0)
-        fill = np.where(one, d_left + t * (d_right - d_left), fill)
+        with np.errstate(invalid="ignore"):  # inf - inf where a run touches the border
+            step = d_right - d_left
+            one = np.isfinite(step) & (np.abs(step) <= same_surface_px + 0.1 * gap)
+            fill = np.where(one, d_left + t * np.where(one, step, 0.0), fill)
     if max_gap_px is not None:
         fill[(rc - lc - 1) > max_gap_px] = np.inf  # run length between the two valid neighbours
     fill[~np.isfinite(fill)] = np.nan

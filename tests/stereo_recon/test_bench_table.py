@@ -1,0 +1,53 @@
+"""The Table 2 benchmark's bookkeeping: truck ranges, error table, averages, verdict check (no rendering)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from stereo_recon.bench import (PAPER_AVERAGE_ERROR_PCT, bench_summary, parse_truck_range, table_markdown,
+                                verdict_matches, write_bench)
+from stereo_recon.errors import ConfigError
+
+
+def _result(name, truth, measured, t=10.0):
+    err = {d: 100 * abs(measured[i] - truth[i]) / truth[i] for i, d in enumerate(("length", "width", "height"))}
+    err["overall"] = sum(err.values()) / 3
+    return {"ok": True, "name": name, "truth": dict(zip(("length", "width", "height"), truth)),
+            "length_m": measured[0], "width_m": measured[1], "height_m": measured[2], "error_pct": err, "time_s": t}
+
+
+def test_parse_truck_range():
+    assert parse_truck_range("1-3,7, 9-10") == [1, 2, 3, 7, 9, 10]
+    for bad in ("0-3", "19-21", "a-b", ""):
+        with pytest.raises(ConfigError):
+            parse_truck_range(bad)
+
+
+def test_table_and_summary_average_the_per_truck_errors(tmp_path):
+    results = [_result("table2:1", (1.0, 0.2, 0.3), (1.01, 0.2, 0.3), 10.0),        # L +1 %
+               _result("table2:2", (2.0, 0.4, 0.4), (2.0, 0.39, 0.404), 30.0),      # W -2.5 %, H +1 %
+               {"ok": False, "name": "table2:3", "error": "StageError: poses"}]
+    s = bench_summary(results)
+    assert (s["n_ok"], s["n_failed"]) == (2, 1)
+    assert s["average_error_pct"]["length"] == pytest.approx(0.5)
+    assert s["average_error_pct"]["width"] == pytest.approx(1.25)
+    assert s["average_error_pct"]["height"] == pytest.approx(0.5)
+    assert s["worst_single_dimension_error_pct"] == pytest.approx(2.5)
+    assert s["median_time_s"] == pytest.approx(20.0)
+    md = table_markdown(results)
+    assert "| table2:3 | failed: StageError: poses" in md
+    assert "| **Average (ours)** | | | | | | | 0.50% | 1.25% | 0.50% | 0.75% | |" in md
+    assert f"{PAPER_AVERAGE_ERROR_PCT['overall']:.2f}%" in md
+    md_path, js_path = write_bench(tmp_path, results)
+    assert md_path.read_text() == md
+    assert json.loads(js_path.read_text())["summary"]["n_ok"] == 2
+
+
+def test_verdict_matches_truth_vocabulary():
+    assert verdict_matches("over-limit", "over")
+    assert verdict_matches("within-limits", "within")
+    assert not verdict_matches("within-limits", "undecided")
+    assert not verdict_matches("over-limit", "within")
+    assert verdict_matches(None, "over") is None
