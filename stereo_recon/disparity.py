@@ -336,26 +336,25 @@ def refine_subpixel(left: np.ndarray, right: np.ndarray, disp_px: np.ndarray, wi
     dmax = cv2.dilate(np.where(valid, d0, -big), kernel)
     dmin = cv2.erode(np.where(valid, d0, big), kernel)
     ok = valid & (dmax - dmin <= 1.5)
-    n = float(k[0] * k[1])
+    n = np.float32(k[0] * k[1])
     xs, ys = _pixel_grid(h, w)
-    d = np.where(valid, d0, 0).astype(np.float32)
+    d = np.where(valid, d0, np.float32(0))
+    d_start = d.copy()
+    box = functools.partial(cv2.boxFilter, ddepth=-1, ksize=k, normalize=False)
     for _ in range(max(int(iterations), 0)):
-        mx = xs - d
-        rw = cv2.remap(R, mx, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        # cv2 arithmetic (SIMD, threaded) here: numpy temporaries cost as much as the matching.
+        mx = cv2.subtract(xs, d)
         g = cv2.remap(gx, mx, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        e = L - rw
+        e = cv2.subtract(L, cv2.remap(R, mx, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
         # Residual e + g*delta - b; normal equations of (delta, b), window sums by box filters.
-        sgg = cv2.boxFilter(g * g, -1, k, normalize=False)
-        sg = cv2.boxFilter(g, -1, k, normalize=False)
-        sge = cv2.boxFilter(g * e, -1, k, normalize=False)
-        se = cv2.boxFilter(e, -1, k, normalize=False)
-        det = n * sgg - sg * sg
+        sgg, sg = box(cv2.multiply(g, g)), box(g)
+        sge, se = box(cv2.multiply(g, e)), box(e)
+        det = cv2.addWeighted(sgg, float(n), cv2.multiply(sg, sg), -1.0, 0.0)
+        num = cv2.addWeighted(cv2.multiply(sg, se), 1.0, sge, -float(n), 0.0)
         strong = det > n * n * 4.0  # mean centred gradient^2 >= 4 (grey levels/px)^2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            delta = (-n * sge + sg * se) / det
-        step_ok = ok & strong & np.isfinite(delta)
-        d = np.where(step_ok, d + delta, d)
-        ok &= np.abs(d - np.where(valid, d0, 0)) <= max_step_px
+        delta = cv2.divide(num, np.where(strong, det, np.float32(1)))
+        d = np.where(ok & strong, cv2.add(d, delta), d)
+        ok &= np.abs(cv2.subtract(d, d_start)) <= max_step_px
     out = np.where(ok, d, d0).astype(np.float32)
     out[~valid] = np.nan
     return out

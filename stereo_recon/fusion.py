@@ -305,7 +305,10 @@ class TSDFFusion:
             return np.zeros((0, 3)), np.zeros((0, 3))
         pts = pcd.point.positions.cpu().numpy().astype(np.float64)
         cols = pcd.point.colors.cpu().numpy().astype(np.float64) if "colors" in pcd.point else np.zeros_like(pts)
-        return pts, np.clip(cols, 0.0, 1.0)
+        # The hash map's block order depends on thread scheduling, so the same volume comes out in a
+        # different order each run; sorting makes cloud.ply (and all that reads it) reproducible.
+        order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
+        return pts[order], np.clip(cols[order], 0.0, 1.0)
 
     def extract_mesh(self, min_weight: float | None = None):
         """Marching-cubes surface as a legacy ``open3d.geometry.TriangleMesh`` (vertex colours RGB [0, 1])."""
