@@ -124,6 +124,47 @@ def depth_edge_mask(depth_m: np.ndarray, step_rel: float, window_px: int = 5) ->
     return valid & step
 
 
+def consistent_depth_mask(depth_m: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
+                          others: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+                          rel_tol: float = 0.01, min_agree: int = 1) -> np.ndarray:
+    """Pixels of a depth map that other views confirm (the geometric consistency check of MVS fusion).
+
+    depth_m: (H, W) z-depth in m of one view (NaN or 0 = invalid); K: (3, 3) its pinhole intrinsics
+    (px, OpenCV centres); T_wc: (4, 4) its world-from-camera pose (m). others: (depth_m, K, T_wc) of
+    other views, same conventions. A pixel's 3-D point agrees with another view when it projects
+    inside it onto a valid depth within ``rel_tol`` x its depth there; points hidden or unseen there
+    neither agree nor disagree. Returns (H, W) bool: valid and agreed by at least ``min_agree`` views.
+
+    Stereo on weakly textured panels interpolates, and what it interpolates differs from view to
+    view (a truck side +1 cm from one view, -4 cm from another); averaging those in the TSDF moves
+    the fused surface, while depths that several views reproduce are the ones worth fusing.
+    """
+    z = np.asarray(depth_m, dtype=np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    v, u = np.nonzero(valid)
+    zz = z[v, u]
+    pc = np.stack([(u - K[0, 2]) / K[0, 0] * zz, (v - K[1, 2]) / K[1, 1] * zz, zz], 1)
+    pw = pc @ T_wc[:3, :3].T + T_wc[:3, 3]
+    agree = np.zeros(len(zz), dtype=np.int32)
+    for dj, Kj, Tj in others:
+        dj = np.asarray(dj)
+        hj, wj = dj.shape
+        Rcw = Tj[:3, :3].T
+        pj = (pw - Tj[:3, 3]) @ Rcw.T
+        zj = pj[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uj = np.rint(Kj[0, 0] * pj[:, 0] / zj + Kj[0, 2])
+            vj = np.rint(Kj[1, 1] * pj[:, 1] / zj + Kj[1, 2])
+        inside = (zj > 0) & (uj >= 0) & (uj < wj) & (vj >= 0) & (vj < hj)
+        idx = np.flatnonzero(inside)
+        seen = dj[vj[idx].astype(np.intp), uj[idx].astype(np.intp)]
+        ok = np.isfinite(seen) & (np.abs(seen - zj[idx]) <= rel_tol * zj[idx])
+        agree[idx[ok]] += 1
+    mask = np.zeros(z.shape, dtype=bool)
+    mask[v, u] = agree >= min_agree
+    return mask
+
+
 def pixel_centre_intrinsics(K: np.ndarray) -> np.ndarray:
     """Intrinsics to hand to Open3D's TSDF integration so that its truncating pixel lookup is a nearest-pixel one.
 

@@ -25,6 +25,8 @@ Output folder (written through ``staged_output_dir``: complete or untouched):
 
 from __future__ import annotations
 
+import functools
+
 import logging
 import queue
 import shutil
@@ -40,7 +42,7 @@ import numpy as np
 
 from stereo_recon.disparity import DisparityConfig, depth_from_disparity, disparity_map, disparity_range_for_depth, preset
 from stereo_recon.errors import ConfigError, StageError
-from stereo_recon.fusion import (FusionConfig, TSDFFusion, estimate_block_count, voxel_size_from_depth,
+from stereo_recon.fusion import (FusionConfig, TSDFFusion, consistent_depth_mask, estimate_block_count, voxel_size_from_depth,
                                  write_cloud_ply)
 from stereo_recon.manifest import Stopwatch, run_manifest, staged_output_dir, write_json_atomic
 from stereo_recon.video import KeyframeConfig, KeyframeSelector, open_stereo_source, validate_against_rig
@@ -97,6 +99,14 @@ class ReconstructConfig:
     # Fused depth is cut at this multiple of the median depth of the fused views (the region of
     # interest around the object; far ground costs blocks and adds Z^2 noise); None = depth_max_m only.
     fusion_depth_max_rel: float | None = 2.0
+    # Geometric consistency before fusion (as MVS fusion does): a depth pixel is fused only when at
+    # least ``consistency_min_views`` of the ``consistency_views`` nearest fused views (by camera
+    # position) see the same point within ``consistency_rel_tol`` x depth. None = fuse every pixel
+    # (the default: on the sample truck it brings the side walls' median to within 1 mm of the truth
+    # but keeps only 10-50 % of their points, so the cab, not the box, then sets the width).
+    consistency_views: int | None = None
+    consistency_min_views: int = 1
+    consistency_rel_tol: float = 0.01
     # TSDF settings; voxel_m None = derived from the first keyframe's depth.
     fusion: FusionConfig = FusionConfig()
     voxel_m: float | None = None
@@ -457,6 +467,14 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                 fcfg = replace(fcfg, block_count=int(min(2 * est, cap)))
         fusion = TSDFFusion(fcfg)
         fused = 0
+        posed = [idx for idx in keyframes if idx in pose_by_index]
+        centres = np.array([pose_by_index[idx][:3, 3] for idx in posed]).reshape(-1, 3)
+        K_sub = np.diag([1.0 / sub, 1.0 / sub, 1.0]) @ K
+
+        @functools.lru_cache(maxsize=2 * (c.consistency_views or 0) + 2)
+        def fusion_depth(idx: int) -> np.ndarray:
+            return np.ascontiguousarray(np.load(work / "depth" / f"{idx:06d}.npy")[::sub, ::sub])
+
         def load_views():
             for n, idx in enumerate(keyframes):
                 T = pose_by_index.get(idx)
@@ -464,8 +482,14 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                     continue
                 name = f"{idx:06d}"
                 color = cv2.imread(str(work / "images" / f"{name}.png"), cv2.IMREAD_COLOR)
-                depth = np.load(work / "depth" / f"{name}.npy")
-                yield n, T, subsample_for_fusion(color, depth, K, sub)
+                color, depth, K_view = np.ascontiguousarray(color[::sub, ::sub]), fusion_depth(idx), K_sub
+                if c.consistency_views and len(posed) > 1:
+                    near = np.argsort(np.linalg.norm(centres - T[:3, 3], axis=1))[1:c.consistency_views + 1]
+                    others = [(fusion_depth(posed[j]), K_sub, pose_by_index[posed[j]]) for j in near]
+                    keep = consistent_depth_mask(depth, K_view, T, others, c.consistency_rel_tol,
+                                                 c.consistency_min_views)
+                    depth = np.where(keep, depth, np.nan).astype(np.float32)
+                yield n, T, (color, depth, K_view)
 
         # The next view is read from disk while this one is integrated.
         for n, T, (color, depth, K_view) in _prefetch(load_views(), 2):

@@ -125,3 +125,22 @@ def test_depth_edge_mask_flags_steps_not_slopes():
     assert not m[0, 0]
     steep = np.tile(np.linspace(1.0, 3.0, 100, dtype=np.float32), (40, 1))  # 1 %/px: a wall at a grazing angle
     assert not depth_edge_mask(steep, 0.05, 5).any()
+
+
+def test_consistent_depth_mask_keeps_what_other_views_reproduce(box_on_ground):
+    from stereo_recon.fusion import consistent_depth_mask
+
+    scene = box_on_ground(BOX_MIN, BOX_MAX)
+    poses = [look_at(np.array([RADIUS * np.cos(a), RADIUS * np.sin(a), HEIGHT]), np.array([0, 0, 0.25]))
+             for a in (0.0, 0.3, -0.3)]
+    depths = [_render(scene, T) for T in poses]
+    wrong = depths[0].copy()
+    wrong[40:80, 60:100] *= 1.05  # 5 % too far: no other view sees a surface there
+    others = [(depths[1], K, poses[1]), (depths[2], K, poses[2])]
+    keep = consistent_depth_mask(wrong, K, poses[0], others, rel_tol=0.01, min_agree=1)
+    valid = np.isfinite(depths[0])
+    assert keep[40:80, 60:100].mean() < 0.01  # (a wrong point can land on another true surface by chance)
+    good = valid.copy()
+    good[40:80, 60:100] = False
+    assert keep[good].mean() > 0.9  # the rest is seen by the neighbours (borders of the view aside)
+    assert not keep[~valid].any()
