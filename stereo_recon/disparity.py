@@ -204,14 +204,21 @@ def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
     holes = np.flatnonzero(~valid)
     if holes.size == 0 or holes.size == d.size:
         return d.copy()
-    # Column of the nearest valid pixel to the left / right of every pixel (-1 / w: none), int32 for speed.
-    cols = np.arange(w, dtype=np.int32)
-    left = np.where(valid, cols, np.int32(-1))
+    # Column of the nearest valid pixel to the left / right of every pixel (-1 / w: none); int16 when
+    # the width allows (half the memory traffic of int32: this scan is most of the function's time).
+    it = np.int16 if w < 32767 else np.int32
+    cols = np.arange(w, dtype=it)
+    left = np.where(valid, cols, it(-1))
     np.maximum.accumulate(left, axis=1, out=left)
-    right = np.minimum.accumulate(np.where(valid, cols, np.int32(w))[:, ::-1], axis=1)[:, ::-1]
+    right = np.where(valid, cols, it(w))[:, ::-1]
+    np.minimum.accumulate(right, axis=1, out=right)
+    right = right[:, ::-1]
     # Gather only at the holes (typically 10-20 % of the pixels).
-    lc = left.ravel()[holes]
-    rc = right.ravel()[holes]
+    lc = left.ravel()[holes].astype(np.int64)
+    rc = right.ravel()[holes].astype(np.int64)
+    if max_gap_px is not None:  # runs too long to fill (run length between the two valid neighbours)
+        short = (rc - lc - 1) <= max_gap_px
+        holes, lc, rc = holes[short], lc[short], rc[short]
     row0 = holes - holes % w
     flat = d.ravel()
     d_left = np.where(lc >= 0, flat[row0 + np.maximum(lc, 0)], np.inf)
@@ -224,8 +231,6 @@ def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
             step = d_right - d_left
             one = np.isfinite(step) & (np.abs(step) <= same_surface_px + 0.1 * gap)
             fill = np.where(one, d_left + t * np.where(one, step, 0.0), fill)
-    if max_gap_px is not None:
-        fill[(rc - lc - 1) > max_gap_px] = np.inf  # run length between the two valid neighbours
     fill[~np.isfinite(fill)] = np.nan
     out = d.copy()
     out.ravel()[holes] = fill
@@ -236,9 +241,10 @@ def _median_valid(d: np.ndarray, k: int) -> np.ndarray:
     """k x k median of a float map that keeps NaN where the input is NaN (NaN treated as 0 inside)."""
     import cv2
 
-    valid = np.isfinite(d)
-    out = cv2.medianBlur(np.where(valid, d, 0).astype(np.float32), k)
-    out[~valid] = np.nan
+    filled = np.array(d, dtype=np.float32, copy=True)
+    cv2.patchNaNs(filled, 0.0)
+    out = cv2.medianBlur(filled, k)
+    out[np.isnan(d)] = np.nan
     return out
 
 
@@ -280,7 +286,8 @@ def disparity_map(left_rect_gray: np.ndarray, right_rect_gray: np.ndarray,
         if config.wls_min_confidence is not None:
             disp[wls.getConfidenceMap() < config.wls_min_confidence] = np.nan
     else:
-        disp = raw.astype(np.float32) / 16.0
+        disp = raw.astype(np.float32)
+        disp *= np.float32(1.0 / 16.0)
         disp[invalid_raw] = np.nan
         if config.lr_check_px is not None:
             raw_right, _ = _right_disparity(matcher, left, right)
@@ -330,33 +337,37 @@ def refine_subpixel(left: np.ndarray, right: np.ndarray, disp_px: np.ndarray, wi
     h, w = d0.shape
     k = (int(window_px), int(window_px))
     gx = cv2.Sobel(R, cv2.CV_32F, 1, 0, ksize=1, scale=0.5)  # central difference, per px
+    # cv2 arithmetic and uint8 masks (SIMD, threaded) throughout: numpy temporaries on full frames
+    # cost as much here as the fit itself.
+    def patched(value: float) -> np.ndarray:
+        a = d0.copy()
+        cv2.patchNaNs(a, value)
+        return a
+
     # Disparity range within the window: refine only where the window sees one surface.
-    big = np.float32(1e6)
     kernel = np.ones(k, np.uint8)
-    dmax = cv2.dilate(np.where(valid, d0, -big), kernel)
-    dmin = cv2.erode(np.where(valid, d0, big), kernel)
-    ok = valid & (dmax - dmin <= 1.5)
-    n = np.float32(k[0] * k[1])
+    spread = cv2.subtract(cv2.dilate(patched(-1e6), kernel), cv2.erode(patched(1e6), kernel))
+    ok = cv2.bitwise_and(cv2.compare(spread, 1.5, cv2.CMP_LE), cv2.compare(d0, d0, cv2.CMP_EQ))  # NaN != NaN
+    n = float(k[0] * k[1])
     xs, ys = _pixel_grid(h, w)
-    d = np.where(valid, d0, np.float32(0))
+    d = patched(0.0)
     d_start = d.copy()
     box = functools.partial(cv2.boxFilter, ddepth=-1, ksize=k, normalize=False)
     for _ in range(max(int(iterations), 0)):
-        # cv2 arithmetic (SIMD, threaded) here: numpy temporaries cost as much as the matching.
         mx = cv2.subtract(xs, d)
         g = cv2.remap(gx, mx, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         e = cv2.subtract(L, cv2.remap(R, mx, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
         # Residual e + g*delta - b; normal equations of (delta, b), window sums by box filters.
         sgg, sg = box(cv2.multiply(g, g)), box(g)
         sge, se = box(cv2.multiply(g, e)), box(e)
-        det = cv2.addWeighted(sgg, float(n), cv2.multiply(sg, sg), -1.0, 0.0)
-        num = cv2.addWeighted(cv2.multiply(sg, se), 1.0, sge, -float(n), 0.0)
-        strong = det > n * n * 4.0  # mean centred gradient^2 >= 4 (grey levels/px)^2
-        delta = cv2.divide(num, np.where(strong, det, np.float32(1)))
-        d = np.where(ok & strong, cv2.add(d, delta), d)
-        ok &= np.abs(cv2.subtract(d, d_start)) <= max_step_px
-    out = np.where(ok, d, d0).astype(np.float32)
-    out[~valid] = np.nan
+        det = cv2.addWeighted(sgg, n, cv2.multiply(sg, sg), -1.0, 0.0)  # >= 0 (Cauchy-Schwarz)
+        num = cv2.addWeighted(cv2.multiply(sg, se), 1.0, sge, -n, 0.0)
+        strong = cv2.compare(det, n * n * 4.0, cv2.CMP_GT)  # mean centred gradient^2 >= 4 (grey levels/px)^2
+        delta = cv2.divide(num, cv2.max(det, 1.0))
+        cv2.copyTo(cv2.add(d, delta), cv2.bitwise_and(ok, strong), d)
+        ok = cv2.bitwise_and(ok, cv2.compare(cv2.absdiff(d, d_start), max_step_px, cv2.CMP_LE))
+    out = d0.copy()  # NaN stays NaN: ok is 0 there
+    cv2.copyTo(d, ok, out)
     return out
 
 
