@@ -170,6 +170,9 @@ def _cmd_bench(args) -> int:
                 meta = json.loads((Path(r["out_dir"]) / "run.json").read_text())
                 ups[r["name"]] = meta.get("up")
         res = run_study(args.study, clouds, out, up_hints=ups)
-        print(f"study {args.study}: optimum {res['optimum_m']} m; table {out / f'study-{args.study}.md'}")
+        d = res["default"]
+        print(f"study {args.study}: optimum {res['optimum_m']} m (most accurate {res['most_accurate_m']} m, fastest "
+              f"{res['fastest_m']} m); our default resolved to {d['resolved_m']} m: MSE {d['mean_mse_m2']}, "
+              f"{d['mean_time_s']:.2f} s per truck; table {out / f'study-{args.study}.md'}")
     print(f"tables: {md} {js}")
     return 0 if all(r["ok"] for r in results) else 1

@@ -51,3 +51,23 @@ def test_verdict_matches_truth_vocabulary():
     assert not verdict_matches("within-limits", "undecided")
     assert not verdict_matches("over-limit", "within")
     assert verdict_matches(None, "over") is None
+
+
+def test_study_sweeps_the_paper_values_and_scores_our_default(tmp_path):
+    """The d_h study re-measures clouds over 0.06-0.08 m and adds our scale-free default as its own row."""
+    import numpy as np
+
+    from measure.cloud_io import write_cloud
+    from measure.synthetic_cloud import MODEL_TRUCK, make_truck_scene
+    from stereo_recon.bench import run_study
+
+    pts, truth = make_truck_scene(MODEL_TRUCK, rng=np.random.default_rng(3))
+    path = write_cloud(tmp_path / "truck.ply", pts)
+    res = run_study("ground-thickness", [("t", path, truth)], tmp_path, up_hints={"t": [0.0, 0.0, 1.0]})
+    assert [r["value_m"] for r in res["rows"]] == pytest.approx(list(np.arange(0.06, 0.0801, 0.002)))
+    d = res["default"]
+    assert d["value_m"] is None and len(d["resolved_m"]) == 1 and d["resolved_m"][0] > 0  # from the point spacing
+    assert d["mean_mse_m2"] is not None and d["mean_mse_m2"] < 1e-3  # model truck measured within ~3 cm overall
+    md = (tmp_path / "study-ground-thickness.md").read_text()
+    assert "default (scale-free" in md and "optimum:" in md
+    assert (tmp_path / "study-ground-thickness.png").is_file()
