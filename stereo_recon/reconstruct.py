@@ -454,13 +454,19 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
             fcfg = replace(fcfg, voxel_m=voxel_size_from_depth(np.asarray(view_depths_m[:1]), f_px,
                                                                fcfg.voxel_footprint_px, fcfg.min_voxel_m,
                                                                fcfg.max_voxel_m))
+        @functools.lru_cache(maxsize=2 * (c.consistency_views or 0) + 2)
+        def fusion_view(idx: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """(colour, depth, K) of a keyframe as fused: every sub-th pixel."""
+            color = cv2.imread(str(work / "images" / f"{idx:06d}.png"), cv2.IMREAD_COLOR)
+            return subsample_for_fusion(color, np.load(work / "depth" / f"{idx:06d}.npy"), K, sub)
+
         if fcfg.block_count is None and keyframes:
             # Size the voxel-block hash map for all views up front: growing it (Open3D's reserve) rehashes
             # and copies the whole grid, which cost more than the integration itself on the 120-frame orbit.
-            z0 = np.load(work / "depth" / f"{keyframes[0]:06d}.npy")[::sub, ::sub]
+            _, z0, K0 = fusion_view(keyframes[0])
             z0 = np.where((z0 >= fcfg.depth_min_m) & (z0 <= fcfg.depth_max_m), z0, np.nan)
             if np.isfinite(z0).any() and fcfg.voxel_m is not None:
-                est = estimate_block_count(z0, np.diag([1.0 / sub, 1.0 / sub, 1.0]) @ K, fcfg.voxel_m,
+                est = estimate_block_count(z0, K0, fcfg.voxel_m,
                                            fcfg.block_resolution, fcfg.trunc_voxels, frames=len(keyframes))
                 # At most 1.5 GiB up front (the grid still grows past it when needed, up to max_memory_gib).
                 cap = int(min(1.5, fcfg.max_memory_gib) * 2**30 // (fcfg.block_resolution ** 3 * 20))
@@ -469,23 +475,16 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
         fused = 0
         posed = [idx for idx in keyframes if idx in pose_by_index]
         centres = np.array([pose_by_index[idx][:3, 3] for idx in posed]).reshape(-1, 3)
-        K_sub = np.diag([1.0 / sub, 1.0 / sub, 1.0]) @ K
-
-        @functools.lru_cache(maxsize=2 * (c.consistency_views or 0) + 2)
-        def fusion_depth(idx: int) -> np.ndarray:
-            return np.ascontiguousarray(np.load(work / "depth" / f"{idx:06d}.npy")[::sub, ::sub])
 
         def load_views():
             for n, idx in enumerate(keyframes):
                 T = pose_by_index.get(idx)
                 if T is None:
                     continue
-                name = f"{idx:06d}"
-                color = cv2.imread(str(work / "images" / f"{name}.png"), cv2.IMREAD_COLOR)
-                color, depth, K_view = np.ascontiguousarray(color[::sub, ::sub]), fusion_depth(idx), K_sub
+                color, depth, K_view = fusion_view(idx)
                 if c.consistency_views and len(posed) > 1:
                     near = np.argsort(np.linalg.norm(centres - T[:3, 3], axis=1))[1:c.consistency_views + 1]
-                    others = [(fusion_depth(posed[j]), K_sub, pose_by_index[posed[j]]) for j in near]
+                    others = [(*fusion_view(posed[j])[1:], pose_by_index[posed[j]]) for j in near]
                     keep = consistent_depth_mask(depth, K_view, T, others, c.consistency_rel_tol,
                                                  c.consistency_min_views)
                     depth = np.where(keep, depth, np.nan).astype(np.float32)

@@ -115,6 +115,21 @@ def test_same_input_gives_the_same_cloud_bytes(orbit, tmp_path):
     assert digests[0] == digests[1]
 
 
+def test_consistency_filter_keeps_an_accurate_subset(orbit, tmp_path):
+    """With the multi-view consistency filter the cloud is a subset in size and stays on the surface."""
+    root, _, scene = orbit
+    counts = {}
+    for name, views in (("all", None), ("consistent", 3)):
+        cfg = ReconstructConfig(poses=f"gt:{root / 'poses_gt.txt'}", fps=FPS, depth_min_m=1.0, depth_max_m=4.0,
+                                voxel_m=0.02, keyframes=None, step=4, consistency_views=views)
+        man = reconstruct(root / "frames", _rig(), tmp_path / name, cfg)
+        counts[name] = man["counts"]["cloud_points"]
+        pts = np.asarray(o3d.io.read_point_cloud(str(tmp_path / name / "cloud.ply")).points)
+        dist = scene.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy()
+        assert np.median(dist) < 0.01, name
+    assert 0 < counts["consistent"] <= counts["all"], counts
+
+
 def test_reconstruct_errors_leave_nothing(orbit, tmp_path):
     root, traj, _ = orbit
     out = tmp_path / "out"
