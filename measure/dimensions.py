@@ -56,16 +56,9 @@ def _robust_extremes(counts: np.ndarray, grid: np.ndarray, f: float) -> tuple[fl
     return float(lo), float(hi)
 
 
-def _noise_shift(f: float, wall_share: float, noise: float) -> float:
-    """How far (metres) the f-quantile extreme lies outside a wall holding ``wall_share`` of the
-    points when positions scatter with Gaussian ``noise``: Φ⁻¹(1 − f / (2·share))·noise."""
+def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0):
     from scipy.stats import norm
 
-    q = min(max(f / max(2 * wall_share, 1e-12), 1e-9), 0.5)
-    return float(norm.isf(q) * noise)
-
-
-def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0):
     dens = smooth_counts(counts, step, h)
     # Wall peaks: the significant ones, plus weaker ones that still carry a wall's worth of
     # points (a cab wider than the box shows as a smaller peak just outside the box's).
@@ -89,9 +82,6 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
     core = q_hi - q_lo
     if len(left) and len(right) and right.max() - left.min() >= cfg.wall_min_share * core:
         e0, e1 = float(left.min()), float(right.max())
-        # A wider part just outside a wall (a cab wider than the box by less than the noise
-        # can separate) shows as a shoulder: more points beyond the peak than its own noise
-        # tail holds. Then that side's edge is the robust extreme, corrected for the noise.
         # A wider part just outside a wall (a cab wider than the box, a flatbed's deck beside its
         # load) by less than the noise can separate shows as a shoulder: more points beyond the
         # peak than the wall's own scatter puts there. The wall's scatter is read off its outer
@@ -99,16 +89,14 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
         # says); a tail within it is the wall's, not a shoulder.
         s_eff = float(np.hypot(noise, h))
         d = 2.5 * s_eff
-        cum = np.cumsum(counts)
-        tot = cum[-1]
+        cdf = np.cumsum(counts)
+        tot = cdf[-1]
 
         def band_mass(a: float, b: float) -> float:
-            return float(np.interp(b, grid, cum) - np.interp(a, grid, cum)) / tot
+            return float(np.interp(b, grid, cdf) - np.interp(a, grid, cdf)) / tot
 
         def wall_tail(e: float, side: int) -> float:
             """Share of all points the wall at e (m) puts beyond e + side*d, if its profile is Gaussian."""
-            from scipy.stats import norm
-
             i = int(np.clip(np.searchsorted(grid, e), 0, len(grid) - 1))
             j = i
             while 0 <= j + side < len(dens) and dens[j] > 0.5 * dens[i]:
@@ -119,6 +107,7 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
 
         rule = "kde_two_peaks"
         out_hi, out_lo = band_mass(e1 + d, hi), band_mass(lo, e0 - d)
+
         def shoulder_edge(e: float, side: int) -> float:
             """Outer edge of the shoulder beyond e (m), scanning outwards from e + side*d: its outermost
             peak of at least half its height, else where its density falls to half its height (a
@@ -128,9 +117,9 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
             seg = dens[i:j_end + 1] if side > 0 else dens[j_end:i + 1][::-1]
             top = float(seg.max()) if len(seg) else 0.0
             # A thin outer surface (a deck's edge face, a cab wall) is a peak: take it where it is.
-            pk_out = [k for k in range(1, len(seg) - 1)
-                      if seg[k] >= seg[k - 1] and seg[k] > seg[k + 1] and seg[k] >= 0.5 * top]
-            if pk_out:
+            mid_ = seg[1:-1]
+            pk_out = np.flatnonzero((mid_ >= seg[:-2]) & (mid_ > seg[2:]) & (mid_ >= 0.5 * top)) + 1
+            if len(pk_out):
                 return refine_peak(grid, dens, int(i + side * pk_out[-1]))
             above = np.flatnonzero(seg >= 0.5 * top)
             k = int(above[-1]) if len(above) else 0
