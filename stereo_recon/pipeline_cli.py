@@ -156,9 +156,11 @@ def _cmd_bench(args) -> int:
         for r in fullscale:
             if r["ok"]:
                 got = (r.get("verdict") or {}).get("overall")
+                match = verdict_matches(r.get("expected_verdict"), got)
+                check = "no expectation" if match is None else ("right" if match else "WRONG")
                 print(f"{r['name']}: L {r['length_m']:.2f} W {r['width_m']:.2f} H {r['height_m']:.2f} m, "
                       f"errors {r['error_pct']['overall']:.2f}% avg, verdict {got} (truth expects "
-                      f"{r.get('expected_verdict')}: {'right' if verdict_matches(r.get('expected_verdict'), got) else 'WRONG'})")
+                      f"{r.get('expected_verdict')}: {check})")
     if args.study:
         clouds = []
         for r in model:
