@@ -135,6 +135,11 @@ class ReconstructConfig:
             raise ConfigError(f"fusion_min_width_px={self.fusion_min_width_px}: must be >= 16 or None")
         if self.fusion_depth_max_rel is not None and not self.fusion_depth_max_rel > 1.0:
             raise ConfigError(f"fusion_depth_max_rel={self.fusion_depth_max_rel}: must be > 1 or None")
+        if self.consistency_views is not None and not (
+                self.consistency_views >= 1 and 1 <= self.consistency_min_views <= self.consistency_views
+                and self.consistency_rel_tol > 0):
+            raise ConfigError(f"consistency: need views >= 1, 1 <= min_views <= views, rel_tol > 0 (got "
+                              f"{self.consistency_views}, {self.consistency_min_views}, {self.consistency_rel_tol})")
 
 
 def _rig_summary(rig, rect) -> dict:

@@ -148,3 +148,10 @@ def test_speed_path_config_is_validated():
         ReconstructConfig(fusion_depth_max_rel=0.5)
     with pytest.raises(ConfigError):
         ReconstructConfig(fusion_min_width_px=4)
+
+
+@pytest.mark.parametrize("kw", [dict(consistency_views=0), dict(consistency_views=2, consistency_min_views=3),
+                                dict(consistency_views=2, consistency_rel_tol=0.0)])
+def test_consistency_settings_are_checked(kw):
+    with pytest.raises(ConfigError, match="consistency"):
+        ReconstructConfig(**kw)
