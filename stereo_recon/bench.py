@@ -52,7 +52,8 @@ def _scene_files(scene_dir: Path) -> tuple[Path, Path, dict]:
     return videos[0], calibs[0], json.loads(truth_path.read_text())
 
 
-def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int | None, poses: str) -> dict:
+def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int | None, poses: str,
+              reconstruct_overrides: dict | None = None) -> dict:
     """Render (if needed) one preset, run the full pipeline on it and compare with its truth."""
     from stereo_recon.pipeline import RunConfig, run_video
     from stereo_recon.synthetic import render_sequence
@@ -63,7 +64,8 @@ def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int 
         render_sequence(preset, scene, seed=seed, frames=frames)
     render_s = time.perf_counter() - t0
     video, calib, truth = _scene_files(scene)
-    summary = run_video(video, calib, run_dir, RunConfig(poses=poses, resume=True, quiet=True))
+    summary = run_video(video, calib, run_dir, RunConfig(poses=poses, resume=True, quiet=True,
+                                                         reconstruct_overrides=dict(reconstruct_overrides or {})))
     err_pct = {d: 100.0 * abs(summary[f"{d}_m"] - truth[f"{d}_m"]) / truth[f"{d}_m"] for d in DIMS}
     err_pct["overall"] = float(np.mean([err_pct[d] for d in DIMS]))
     return {

@@ -9,13 +9,13 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from stereo_recon.errors import InputError, StageError, StereoReconError
-from stereo_recon.manifest import sha256_file, write_json_atomic
+from stereo_recon.manifest import sha256_file, to_jsonable, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -78,13 +78,17 @@ def find_sample() -> tuple[Path, Path]:
     return videos[0], calibs[0]
 
 
-def _stage_done(paths: RunPaths, video: Path) -> bool:
+def _stage_done(paths: RunPaths, video: Path, rcfg=None) -> bool:
+    """Whether the reconstruction in ``paths`` was made from this video (sha256) with these settings."""
     if not (paths.cloud.is_file() and paths.run_json.is_file()):
         return False
     try:
         meta = json.loads(paths.run_json.read_text())
         recorded = meta.get("inputs", {}).get("video", {}).get("sha256")
-    except (OSError, json.JSONDecodeError):
+        params = meta.get("parameters", {}).get("reconstruct")
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return False
+    if rcfg is not None and params != json.loads(json.dumps(to_jsonable(asdict(rcfg)))):
         return False
     return recorded == sha256_file(video)
 
@@ -111,7 +115,8 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     stages: dict[str, dict] = {}
 
     t0 = time.perf_counter()
-    if config.resume and _stage_done(paths, video):
+    rcfg = replace(ReconstructConfig(poses=config.poses, rectified=config.rectified), **config.reconstruct_overrides)
+    if config.resume and _stage_done(paths, video, rcfg):
         log.info("reconstruct: reusing %s", paths.cloud)
         stages["reconstruct"] = {"status": "reused"}
     else:
@@ -119,7 +124,6 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
         from stereo_recon.video import open_stereo_source
 
         rig = parse_calib_arg(str(calib), image_size=open_stereo_source(video).eye_size)
-        rcfg = replace(ReconstructConfig(poses=config.poses, rectified=config.rectified), **config.reconstruct_overrides)
         progress = TerminalProgress(enabled=False if config.quiet else None)
         try:
             reconstruct(video, rig, paths.root, rcfg, calib_path=Path(calib) if Path(calib).exists() else None,

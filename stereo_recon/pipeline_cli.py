@@ -17,6 +17,8 @@ def _add_job_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scale", type=float, default=None, help="model-to-real scale factor (model trucks get a legal verdict only with it)")
     p.add_argument("--config", type=Path, default=None, help="TOML/YAML file with measure parameter overrides")
     p.add_argument("--rectified", action="store_true", default=None, help="frames are already rectified (ZED SDK SVO export)")
+    p.add_argument("--motion-stereo", action="store_true",
+                   help="wide-baseline depth from pairs of frames also on near scenes (far scenes get it anyway; vo poses)")
 
 
 def register(sub) -> None:
@@ -49,6 +51,7 @@ def register(sub) -> None:
     c.add_argument("--workers", type=int, default=1)
     c.add_argument("--executor", choices=("local", "ray"), default="local")
     c.add_argument("--no-full-scale", action="store_true", help="skip the full-scale presets (full-truck, over-height)")
+    c.add_argument("--motion-stereo", action="store_true", help="motion stereo on every truck, not only far scenes (vo poses)")
     c.add_argument("--study", choices=("ground-thickness", "fof-eps"), default=None,
                    help="re-measure the reconstructed training trucks (1-6) over the paper's sweep")
     c.set_defaults(func=_cmd_bench)
@@ -61,7 +64,18 @@ def _job_config(args, resume: bool):
         raise ConfigError(f"--scale: must be > 0, got {args.scale}")
     return RunConfig(poses=args.poses, regulation=args.regulation, vehicle_class=args.vehicle_class, scale=args.scale,
                      resume=resume, rectified=args.rectified, measure_config=args.config,
+                     reconstruct_overrides=_motion_overrides(args),
                      quiet=bool(getattr(args, "quiet", False)))
+
+
+def _motion_overrides(args) -> dict:
+    if not getattr(args, "motion_stereo", False):
+        return {}
+    if args.poses != "vo":
+        raise ConfigError("--motion-stereo needs --poses vo (the frames' poses must be known while streaming)")
+    from stereo_recon.motion_stereo import MotionStereoConfig
+
+    return {"motion_stereo": MotionStereoConfig()}
 
 
 def _print_summary(s: dict) -> None:
@@ -132,9 +146,10 @@ def _cmd_bench(args) -> int:
     if args.study:
         trucks = [t for t in trucks if t <= 6] or [1, 2, 3, 4, 5, 6]  # the paper's six training trucks
     jobs = [Job(f"table2:{n}", bench_one, (f"table2:{n}", str(out / "scenes" / f"table2-{n}"), str(out / "runs" / f"table2-{n}"),
-                                          args.seed + n, args.frames, args.poses)) for n in trucks]
+                                          args.seed + n, args.frames, args.poses, _motion_overrides(args))) for n in trucks]
     full = [] if (args.no_full_scale or args.study) else ["full-truck", "over-height"]
-    jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, args.poses)) for p in full]
+    jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, args.poses,
+                                _motion_overrides(args))) for p in full]
 
     def progress(r):
         if r["ok"]:

@@ -38,6 +38,9 @@ def register(subparsers) -> None:
                    help="frames are already rectified (ZED SDK exports): skip rectification")
     p.add_argument("--gpu", action="store_true", help="rectify on a CUDA GPU with torch/kornia (pip install .[gpu])")
     p.add_argument("--keep-work", action="store_true", help="keep keyframe images/depth maps in OUT/work")
+    p.add_argument("--motion-stereo", action="store_true",
+                   help="match each fused view with a later frame ~0.11 x the depth away (a wide baseline) and fuse "
+                        "that depth, also on near scenes (far scenes get it anyway); vo or gt poses only")
     p.set_defaults(func=run)
 
 
@@ -45,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     """Handler: build the config, run ``reconstruct``, print a summary."""
     from calib.io import parse_calib_arg
     from stereo_recon.errors import ConfigError
+    from stereo_recon.motion_stereo import MotionStereoConfig
     from stereo_recon.reconstruct import ReconstructConfig, TerminalProgress, reconstruct
     from stereo_recon.video import open_stereo_source, parse_frame_range
 
@@ -61,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         rectified=True if args.rectified else None, depth_min_m=args.depth_min_m, depth_max_m=args.depth_max_m,
         disparity_preset=args.preset, voxel_m=args.voxel_m, mesh=args.mesh, gpu=args.gpu,
         keyframes=None if args.all_frames else ReconstructConfig().keyframes, keep_work=args.keep_work,
+        motion_stereo=MotionStereoConfig() if args.motion_stereo else None,
     )
     progress = TerminalProgress(enabled=None if not getattr(args, "quiet", False) else False)
     calib_path = Path(args.calib) if Path(args.calib).exists() else None

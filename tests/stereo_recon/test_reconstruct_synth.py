@@ -28,19 +28,30 @@ def synth_vga(tmp_path_factory):
     return out
 
 
-def _gt_cloud(d, rig, gt):
-    """World points of every GT depth map (raw left camera, distorted pixels) with the GT poses."""
+def _gt_cloud(d, rig, gt, max_depth_m=4.0, stride_px=1, every=1):
+    """World points of the GT depth maps (raw left camera, distorted pixels) with the GT poses.
+
+    stride_px: every n-th pixel in both directions; every: every n-th frame.
+    """
     w, h = rig.image_size
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    u, v = np.meshgrid(np.arange(0, w, stride_px, dtype=np.float64), np.arange(0, h, stride_px, dtype=np.float64))
     uv = np.stack([u.ravel(), v.ravel()], 1).reshape(-1, 1, 2)
     xy = cv2.undistortPoints(uv, rig.K1, rig.D1).reshape(-1, 2)
     pts = []
-    for i, T in zip(gt.indices, gt.T_wc):
-        z = np.load(d / "depth" / f"{int(i):06d}.npy").ravel().astype(np.float64)
-        ok = np.isfinite(z) & (z > 0) & (z < 4.0)
+    for i, T in list(zip(gt.indices, gt.T_wc))[::every]:
+        z = np.load(d / "depth" / f"{int(i):06d}.npy")[::stride_px, ::stride_px].ravel().astype(np.float64)
+        ok = np.isfinite(z) & (z > 0) & (z < max_depth_m)
         X = np.stack([xy[ok, 0] * z[ok], xy[ok, 1] * z[ok], z[ok]], 1)
         pts.append(X @ T[:3, :3].T + T[:3, 3])
     return np.vstack(pts)
+
+
+def _in_truck(p, truth, margin=0.02):
+    """Points inside the truck's true box grown by ``margin`` m, above the ground (world frame, m)."""
+    T_wt = np.asarray(truth["truck"]["T_world_truck"])
+    q = (p - T_wt[:3, 3]) @ T_wt[:3, :3]
+    return ((np.abs(q[:, 0]) < truth["length_m"] / 2 + margin) & (np.abs(q[:, 1]) < truth["width_m"] / 2 + margin)
+            & (q[:, 2] > 0.01) & (q[:, 2] < truth["height_m"] + margin))
 
 
 def test_synthetic_truck_cloud_accuracy_and_coverage(synth_vga, tmp_path):
@@ -62,17 +73,11 @@ def test_synthetic_truck_cloud_accuracy_and_coverage(synth_vga, tmp_path):
     ref = _gt_cloud(d, rig, gt)
     # The truck's region: its true box (truth corners) grown by 2 cm, above the ground.
     corners = np.asarray(truth["truck_corners_world_m"])
-    T_wt = np.asarray(truth["truck"]["T_world_truck"])
-    L, W, H = truth["length_m"], truth["width_m"], truth["height_m"]
-
-    def in_truck(p, margin=0.02):
-        q = (p - T_wt[:3, 3]) @ T_wt[:3, :3]
-        return ((np.abs(q[:, 0]) < L / 2 + margin) & (np.abs(q[:, 1]) < W / 2 + margin)
-                & (q[:, 2] > 0.01) & (q[:, 2] < H + margin))
+    L = truth["length_m"]
 
     assert corners.shape[-1] == 3
-    ours_truck = cloud[in_truck(cloud)]
-    ref_truck = ref[in_truck(ref)]
+    ours_truck = cloud[_in_truck(cloud, truth)]
+    ref_truck = ref[_in_truck(ref, truth)]
     assert len(ours_truck) > 5000
     # Point-to-plane distance to the reference surface (local normals of the reference cloud), so the
     # discrete sampling of the reference (~6 mm at VGA) does not count as error.
@@ -87,6 +92,81 @@ def test_synthetic_truck_cloud_accuracy_and_coverage(synth_vga, tmp_path):
     # ~1.8 cm per view at 1.7 m): 8.5 mm = 0.41 % of L, coverage 95 %; HD720, 120 frames, VO: 0.26 %.
     assert np.median(acc) < 0.005 * L
     assert (cov < 0.01 * L).mean() >= 0.90
+
+
+def test_motion_stereo_views_are_fused_and_accurate(tmp_path_factory, tmp_path):
+    """Opt-in motion stereo on a 24-frame VGA orbit (15 deg, 0.44 m between frames) with known poses."""
+    from scipy.spatial import cKDTree
+
+    from stereo_recon.motion_stereo import MotionStereoConfig
+    from stereo_recon.synthetic.sequence import render_sequence
+
+    d = tmp_path_factory.mktemp("synth") / "vga24"
+    render_sequence("model-truck", d, seed=1, frames=24, resolution="VGA", depth=True)
+    truth = json.loads((d / "truth.json").read_text())
+    rig = load_rig(d / "rig.yaml")
+    cfg = ReconstructConfig(poses=f"gt:{d / 'poses_gt.txt'}", depth_min_m=0.5, depth_max_m=4.0,
+                            motion_stereo=MotionStereoConfig())
+    man = reconstruct(d / "video.avi", rig, tmp_path / "out", cfg)
+    counts = man["counts"]
+    assert counts["motion_stereo_views"] >= counts["keyframes_fused"] - 2  # the last views find no later partner
+    assert counts["motion_stereo_depth_scale"] == 1.0  # known poses are never rescaled
+    gt = read_tum(d / "poses_gt.txt", fps=truth["fps"])
+    cloud = np.asarray(o3d.io.read_point_cloud(str(tmp_path / "out" / "cloud.ply")).points)
+    ref = _gt_cloud(d, rig, gt)
+    L = truth["length_m"]
+
+    ours = cloud[_in_truck(cloud, truth)]
+    ref_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ref))
+    ref_pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
+    normals = np.asarray(ref_pcd.normals)
+    _, nn = cKDTree(ref).query(ours)
+    acc = np.abs(np.sum((ours - ref[nn]) * normals[nn], axis=1))
+    cov, _ = cKDTree(cloud).query(ref[_in_truck(ref, truth)])
+    print(f"motion stereo: median distance {1000 * np.median(acc):.1f} mm, coverage {(cov < 0.01 * L).mean():.2f}")
+    # Accuracy: the same target as the rig's depth above (issue 5 item 8). Coverage is lower (measured
+    # 82 %): where the wide pair is occluded the view keeps a hole rather than the rig's biased depth.
+    assert len(ours) > 5000
+    assert np.median(acc) < 0.005 * L
+    assert (cov < 0.01 * L).mean() >= 0.75
+
+
+def test_far_scene_switches_to_motion_stereo(tmp_path_factory, tmp_path):
+    """A full-scale truck (5-8 px of rig disparity): VO on dense depth, motion stereo, trajectory rescaled."""
+    from scipy.spatial import cKDTree
+
+    from stereo_recon.synthetic.sequence import render_sequence
+    from stereo_recon.trajectory import absolute_trajectory_error, align_umeyama
+
+    d = tmp_path_factory.mktemp("synth") / "full24"
+    render_sequence("full-truck", d, seed=0, depth=True)  # the preset: 60 HD720 frames, 6 deg apart
+    truth = json.loads((d / "truth.json").read_text())
+    rig = load_rig(d / "rig.yaml")
+    man = reconstruct(d / "video.avi", rig, tmp_path / "out", ReconstructConfig())
+    counts = man["counts"]
+    assert counts["far_scene"] and counts["first_view_disparity_px"] < 16
+    assert counts["frames_depth"] >= counts["frames_read"] - 2  # dense depth for VO from the second frame on
+    assert counts["motion_stereo_views"] >= counts["keyframes_fused"] - 2
+    assert abs(counts["trajectory_scale_from_rig"] - 1) < 0.02
+    gt = read_tum(d / "poses_gt.txt", fps=truth["fps"])
+    est = read_tum(tmp_path / "out" / "poses.txt", fps=truth["fps"])
+    ate = absolute_trajectory_error(est, gt)
+    cloud = np.asarray(o3d.io.read_point_cloud(str(tmp_path / "out" / "cloud.ply")).points)
+    # VO's frame -> the true world, rigidly (a scale error must show), before comparing with the truth.
+    gt_at = {int(i): T for i, T in zip(gt.indices, gt.T_wc)}
+    _, R, t = align_umeyama(est.T_wc[:, :3, 3], np.array([gt_at[int(i)][:3, 3] for i in est.indices]), with_scale=False)
+    cloud = cloud @ R.T + t
+    ref = _gt_cloud(d, rig, gt, max_depth_m=30.0, stride_px=2, every=3)
+    L = truth["length_m"]
+    ours = cloud[_in_truck(cloud, truth, 0.1)]
+    ref_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ref))
+    ref_pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
+    normals = np.asarray(ref_pcd.normals)
+    _, nn = cKDTree(ref).query(ours)
+    acc = np.abs(np.sum((ours - ref[nn]) * normals[nn], axis=1))
+    print(f"far scene: ATE {ate['rmse_m']:.3f} m, scale {ate['scale']:.4f}, median distance {np.median(acc):.3f} m")
+    assert len(ours) > 5000
+    assert np.median(acc) < 0.005 * L
 
 
 def test_synthetic_depth_maps_match_ground_truth(synth_vga):

@@ -1,0 +1,221 @@
+"""Motion-stereo stage: depth of a fusion view from a second, later frame of the flight (a wide baseline).
+
+Why: the rig's 12 cm baseline resolves 1 px of disparity into Z² / (f B) metres of depth - 1.3 m at
+9 m from HD720 - and on plain painted truck panels SGBM only interpolates between the panel's
+edges, off by 0.3-2 px in a way that differs from view to view. Averaging those in the TSDF does
+not cancel them (its truncation clips the errors unevenly), so full-scale side walls came out 4-5 cm
+off. The drone itself moves ~1 m between frames of an orbit; pairing a fusion view with a frame
+whose camera centre is ``baseline_rel`` x the scene depth away makes the same pixel error ~8x
+smaller in metres. The pair is rectified from the two (final) camera poses with OpenCV's
+``stereoRectify``, matched with 8-path SGBM (3-path SGBM drags plain slanted panels towards one
+edge: +2 cm on full-scale walls, 8 paths: 0-1 cm), and checked against the rig's own depth. The
+median ratio of the rig's depth to the wide depth measures odometry's scale (the wide baselines
+are odometry's steps); ``reconstruct`` rescales the trajectory by it.
+
+Used by ``reconstruct`` for far scenes (``ReconstructConfig.far_scene_disparity_px``) or on request
+(``motion_stereo``). On model trucks at 1.5-2 m it does not help the width (their narrow walls come
+out 1-2 mm inside), so there the rig's depth is fused.
+
+Frames: every pose is world-from-camera (``conventions``) of a *rectified left* camera, metres;
+the returned depth lives in a rotated copy of the fusion view's camera (same centre), whose pose
+``T_wc @ [R_rect^T]`` and intrinsics come with it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from stereo_recon.disparity import DisparityConfig, depth_from_disparity, disparity_map
+from stereo_recon.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class MotionStereoConfig:
+    """Every parameter of motion stereo (partner choice, rectification, matching, checks)."""
+
+    # Wanted distance between the two camera centres, as a fraction of the fusion view's median depth.
+    # 0.11 = 1 m at 9 m: 8x the ZED2's baseline at full scale; at model scale (1.7 m) 19 cm.
+    baseline_rel: float = 0.11
+    # The partner must move mostly sideways in the view's image (|x| of the baseline over its length):
+    # a forward or vertical motion puts the epipole in or near the image and rectification fails.
+    min_lateral_frac: float = 0.75
+    # Largest rotation between the two views (deg); beyond it the panels look too different to match.
+    max_rotation_deg: float = 30.0
+    # A view waits at most this many frames for its partner, then keeps the rig's depth only.
+    max_partner_gap_frames: int = 30
+    # Matching: 8-path SGBM (OpenCV's MODE_HH) on the pair rectified at fusion resolution.
+    mode: str = "hh"
+    # Wide depth is kept where it agrees with the rig's depth within this many px of the *rig's*
+    # disparity (its errors on plain panels reach 2 px; this rejects gross mismatches only).
+    check_px: float = 3.0
+    # Where the wide pair has no valid depth (occlusions, the image border it does not share), fill with
+    # the rig's depth. Off: on the sample truck with exact poses the filled rig depth (biased on plain
+    # walls) moved the width from -0.86 % to -2.37 %; other views cover those holes.
+    fill_from_rig: bool = False
+    # Upper bound of the disparity search of the wide pair (px at fusion resolution).
+    max_num_disparities: int = 256
+    # Rescale odometry's trajectory by the median ratio of the rig's depth to the wide pairs' depth
+    # (``reconstruct``): the wide pairs' baselines are odometry's steps, so that ratio is odometry's
+    # scale error as the rig's dense depth sees it. Skipped when it exceeds max_rescale.
+    rescale_trajectory: bool = True
+    max_rescale: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not 0 < self.baseline_rel < 1:
+            raise ConfigError(f"motion stereo baseline_rel={self.baseline_rel}: must be in (0, 1)")
+        if not 0 < self.min_lateral_frac <= 1:
+            raise ConfigError(f"motion stereo min_lateral_frac={self.min_lateral_frac}: must be in (0, 1]")
+        if not 0 < self.max_rotation_deg < 90:
+            raise ConfigError(f"motion stereo max_rotation_deg={self.max_rotation_deg}: must be in (0, 90)")
+        if self.max_partner_gap_frames < 1:
+            raise ConfigError(f"motion stereo max_partner_gap_frames={self.max_partner_gap_frames}: must be >= 1")
+        if not self.check_px > 0:
+            raise ConfigError(f"motion stereo check_px={self.check_px}: must be > 0")
+
+
+def _rotation_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def partner_ok(T_wc_a: np.ndarray, T_wc_b: np.ndarray, depth_m: float, config: MotionStereoConfig) -> bool:
+    """Whether view b makes a wide-baseline pair with view a.
+
+    T_wc_a, T_wc_b: (4, 4) world-from-camera poses (m); depth_m: median scene depth of view a (m).
+    True when the centres are at least ``baseline_rel`` x depth apart, the baseline runs mostly along
+    a's image x axis and the views are turned by at most ``max_rotation_deg``.
+    """
+    if not (np.isfinite(depth_m) and depth_m > 0):
+        return False
+    rel = np.linalg.inv(T_wc_a) @ T_wc_b  # b's centre in a's camera frame
+    t = rel[:3, 3]
+    dist = float(np.linalg.norm(t))
+    return bool(dist >= config.baseline_rel * depth_m and abs(t[0]) >= config.min_lateral_frac * dist
+                and _rotation_deg(rel[:3, :3]) <= config.max_rotation_deg)
+
+
+@dataclass(frozen=True)
+class MotionPair:
+    """Rectification of a (view, partner) pair, at the output size.
+
+    maps_a / maps_b: float32 (map_x, map_y) for ``cv2.remap`` from each full-size input image.
+    K_rect: (3, 3) intrinsics of the rectified view a (px, output size). R_rect_a: (3, 3) rotation
+    rectified-from-camera of view a. baseline_m: distance between the centres. partner_left: the
+    partner is the left camera of the rectified pair (images are then mirrored for matching).
+    """
+
+    maps_a: tuple[np.ndarray, np.ndarray]
+    maps_b: tuple[np.ndarray, np.ndarray]
+    K_rect: np.ndarray
+    R_rect_a: np.ndarray
+    baseline_m: float
+    partner_left: bool
+    size_px: tuple[int, int]
+
+
+def rectify_motion_pair(K: np.ndarray, T_wc_a: np.ndarray, T_wc_b: np.ndarray, image_size: tuple[int, int],
+                        out_size: tuple[int, int]) -> MotionPair:
+    """Rectify two views of one moving pinhole camera (no distortion: images already rectified by the rig).
+
+    K: (3, 3) px intrinsics of both input images (size ``image_size`` (w, h)); T_wc_a, T_wc_b: (4, 4)
+    world-from-camera poses (m); out_size: (w, h) of the rectified images (e.g. the fusion resolution).
+    """
+    import cv2
+
+    rel = np.linalg.inv(T_wc_b) @ T_wc_a  # X_b = R X_a + t  (OpenCV's stereo extrinsics, conventions)
+    R, t = rel[:3, :3], rel[:3, 3]
+    zero = np.zeros(5)
+    K = np.asarray(K, dtype=np.float64)
+    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(K, zero, K, zero, tuple(image_size), R, t.reshape(3, 1),
+                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=0,
+                                                newImageSize=tuple(out_size))
+    maps_a = cv2.initUndistortRectifyMap(K, zero, R1, P1, tuple(out_size), cv2.CV_32FC1)
+    maps_b = cv2.initUndistortRectifyMap(K, zero, R2, P2, tuple(out_size), cv2.CV_32FC1)
+    # a's centre seen from b: t. x < 0 means a is to the left of b (OpenCV: T ~ [-B, 0, 0]).
+    return MotionPair(maps_a, maps_b, P1[:3, :3].copy(), R1, float(np.linalg.norm(t)), bool(t[0] > 0),
+                      (int(out_size[0]), int(out_size[1])))
+
+
+def _rig_depth_in_rect(pair: MotionPair, depth_a_m: np.ndarray) -> np.ndarray:
+    """The rig's depth of view a (full size, its own camera frame) resampled as z in a's rectified frame."""
+    import cv2
+
+    z = cv2.remap(np.nan_to_num(np.asarray(depth_a_m, np.float32), nan=0.0), *pair.maps_a, cv2.INTER_NEAREST)
+    w, h = pair.size_px
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(pair.K_rect).T  # rectified rays, z' = 1
+    rz = rays @ pair.R_rect_a[:, 2]  # z of the same ray in a's camera frame: (R_rect^T r)_z
+    with np.errstate(divide="ignore", invalid="ignore"):
+        zr = (z / rz).astype(np.float32)
+    zr[~(z > 0)] = np.nan
+    return zr
+
+
+def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, pair: MotionPair,
+                 disparity: DisparityConfig, config: MotionStereoConfig, rig_fb_px_m: float,
+                 depth_max_m: float) -> tuple[np.ndarray, dict]:
+    """Depth (m) of view a from the wide pair (a, b), in a's rectified frame at ``pair.size_px``.
+
+    gray_a, gray_b: full-size rectified grey images of the two views; depth_a_m: the rig's depth of
+    view a (full size, metres, NaN invalid), used for the search range, the check and the fill.
+    disparity: SGBM settings (its range and mode are replaced here); rig_fb_px_m: focal x baseline of
+    the rig (px m), to express the check in the rig's disparity. Returns (depth, counts).
+    """
+    import cv2
+
+    rig_z = _rig_depth_in_rect(pair, depth_a_m)
+    ok = np.isfinite(rig_z) & (rig_z <= depth_max_m)
+    counts = {"wide_valid": 0.0, "rig_filled": 0.0}
+    if ok.sum() < 100:
+        return rig_z, counts
+    z_lo, z_hi = np.percentile(rig_z[ok], [0.5, 99.5])
+    fb = float(pair.K_rect[0, 0]) * pair.baseline_m
+    d_min = max(0, int(math.floor(fb / (1.25 * z_hi))) - 1)
+    d_max = int(math.ceil(fb / (0.8 * z_lo))) + 1
+    num = int(min(math.ceil((d_max - d_min) / 16.0) * 16, config.max_num_disparities // 16 * 16))
+    a = cv2.remap(gray_a, *pair.maps_a, cv2.INTER_LINEAR)
+    b = cv2.remap(gray_b, *pair.maps_b, cv2.INTER_LINEAR)
+    if pair.partner_left:  # match mirrored images, so that a is the left eye and disparities stay positive
+        a, b = np.ascontiguousarray(a[:, ::-1]), np.ascontiguousarray(b[:, ::-1])
+    scale = pair.size_px[0] / gray_a.shape[1]
+    fill = None if disparity.fill_max_px is None else max(1, int(round(disparity.fill_max_px * scale)))
+    dcfg = replace(disparity, min_disparity_px=d_min, num_disparities_px=max(16, num), mode=config.mode,
+                   fill_max_px=fill)
+    d = disparity_map(a, b, dcfg)
+    if pair.partner_left:
+        d = np.ascontiguousarray(d[:, ::-1])
+    z = depth_from_disparity(d, float(pair.K_rect[0, 0]), pair.baseline_m, 1e-3, 1e6)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        both = np.isfinite(z) & np.isfinite(rig_z) & (np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= config.check_px)
+        counts["rig_ratio_median"] = float(np.median(rig_z[both] / z[both])) if both.sum() > 100 else float("nan")
+    counts["rig_fit_scale"] = _fit_scale(d, rig_z, both, float(pair.K_rect[0, 0]) * pair.baseline_m, rig_fb_px_m)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        agree = np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= config.check_px
+    # Where the rig has no depth the check cannot run; the wide pair alone is trusted there.
+    good = np.isfinite(z) & (agree | ~np.isfinite(rig_z))
+    out = np.where(good, z, np.nan).astype(np.float32)
+    counts["wide_valid"] = float(good.mean())
+    if config.fill_from_rig:
+        hole = ~good & np.isfinite(rig_z)
+        out[hole] = rig_z[hole]
+        counts["rig_filled"] = float(hole.mean())
+    return out, counts
+
+
+
+def _fit_scale(disp_px, rig_depth_m, mask, fb_wide, rig_fb, iterations=4):
+    """Baseline scale s (true / nominal) from 1/Z_rig = (d - delta) / (s * fb_wide), delta a disparity offset."""
+    if mask.sum() < 1000:
+        return float("nan")
+    x = disp_px[mask].astype(np.float64)
+    y = 1.0 / rig_depth_m[mask].astype(np.float64)
+    keep = np.ones(len(x), bool)
+    for _ in range(iterations):
+        A = np.column_stack([x[keep], np.ones(keep.sum())])
+        (alpha, beta), *_ = np.linalg.lstsq(A, y[keep], rcond=None)
+        r = y - (alpha * x + beta)
+        sig = 1.4826 * np.median(np.abs(r[keep]))
+        keep = np.abs(r) <= 3 * sig
+    return float(1.0 / (alpha * fb_wide))
