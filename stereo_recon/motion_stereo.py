@@ -188,11 +188,9 @@ def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, 
         d = np.ascontiguousarray(d[:, ::-1])
     z = depth_from_disparity(d, float(pair.K_rect[0, 0]), pair.baseline_m, 1e-3, 1e6)
     with np.errstate(invalid="ignore", divide="ignore"):
-        both = np.isfinite(z) & np.isfinite(rig_z) & (np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= config.check_px)
-        counts["rig_ratio_median"] = float(np.median(rig_z[both] / z[both])) if both.sum() > 100 else float("nan")
-    counts["rig_fit_scale"] = _fit_scale(d, rig_z, both, float(pair.K_rect[0, 0]) * pair.baseline_m, rig_fb_px_m)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        agree = np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= config.check_px
+        agree = np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= config.check_px  # False where either is NaN
+    # The rig's depth over the wide depth where both see: the trajectory's scale error (reconstruct).
+    counts["rig_ratio_median"] = float(np.median(rig_z[agree] / z[agree])) if agree.sum() > 100 else float("nan")
     # Where the rig has no depth the check cannot run; the wide pair alone is trusted there.
     good = np.isfinite(z) & (agree | ~np.isfinite(rig_z))
     out = np.where(good, z, np.nan).astype(np.float32)
@@ -204,18 +202,3 @@ def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, 
     return out, counts
 
 
-
-def _fit_scale(disp_px, rig_depth_m, mask, fb_wide, rig_fb, iterations=4):
-    """Baseline scale s (true / nominal) from 1/Z_rig = (d - delta) / (s * fb_wide), delta a disparity offset."""
-    if mask.sum() < 1000:
-        return float("nan")
-    x = disp_px[mask].astype(np.float64)
-    y = 1.0 / rig_depth_m[mask].astype(np.float64)
-    keep = np.ones(len(x), bool)
-    for _ in range(iterations):
-        A = np.column_stack([x[keep], np.ones(keep.sum())])
-        (alpha, beta), *_ = np.linalg.lstsq(A, y[keep], rcond=None)
-        r = y - (alpha * x + beta)
-        sig = 1.4826 * np.median(np.abs(r[keep]))
-        keep = np.abs(r) <= 3 * sig
-    return float(1.0 / (alpha * fb_wide))

@@ -54,6 +54,18 @@ def _in_truck(p, truth, margin=0.02):
             & (q[:, 2] > 0.01) & (q[:, 2] < truth["height_m"] + margin))
 
 
+def _surface_distance(points, ref):
+    """Point-to-plane distance (m) of each point to the reference cloud (local normals of 20 neighbours),
+    so the discrete sampling of the reference does not count as error."""
+    from scipy.spatial import cKDTree
+
+    ref_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ref))
+    ref_pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
+    normals = np.asarray(ref_pcd.normals)
+    _, nn = cKDTree(ref).query(points)
+    return np.abs(np.sum((points - ref[nn]) * normals[nn], axis=1))
+
+
 def test_synthetic_truck_cloud_accuracy_and_coverage(synth_vga, tmp_path):
     from scipy.spatial import cKDTree
 
@@ -81,11 +93,7 @@ def test_synthetic_truck_cloud_accuracy_and_coverage(synth_vga, tmp_path):
     assert len(ours_truck) > 5000
     # Point-to-plane distance to the reference surface (local normals of the reference cloud), so the
     # discrete sampling of the reference (~6 mm at VGA) does not count as error.
-    ref_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ref))
-    ref_pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
-    normals = np.asarray(ref_pcd.normals)
-    _, nn = cKDTree(ref).query(ours_truck)
-    acc = np.abs(np.sum((ours_truck - ref[nn]) * normals[nn], axis=1))
+    acc = _surface_distance(ours_truck, ref)
     cov, _ = cKDTree(cloud).query(ref_truck)
     # Issue 5 item 8: median distance to the true surface <= 0.5 % of the truck length, coverage >= 90 %
     # of the visible surface (the reference points seen by the 12 views). Measured at VGA (depth noise
@@ -117,11 +125,7 @@ def test_motion_stereo_views_are_fused_and_accurate(tmp_path_factory, tmp_path):
     L = truth["length_m"]
 
     ours = cloud[_in_truck(cloud, truth)]
-    ref_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ref))
-    ref_pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
-    normals = np.asarray(ref_pcd.normals)
-    _, nn = cKDTree(ref).query(ours)
-    acc = np.abs(np.sum((ours - ref[nn]) * normals[nn], axis=1))
+    acc = _surface_distance(ours, ref)
     cov, _ = cKDTree(cloud).query(ref[_in_truck(ref, truth)])
     print(f"motion stereo: median distance {1000 * np.median(acc):.1f} mm, coverage {(cov < 0.01 * L).mean():.2f}")
     # Accuracy: the same target as the rig's depth above (issue 5 item 8). Coverage is lower (measured
@@ -159,11 +163,7 @@ def test_far_scene_switches_to_motion_stereo(tmp_path_factory, tmp_path):
     ref = _gt_cloud(d, rig, gt, max_depth_m=30.0, stride_px=2, every=3)
     L = truth["length_m"]
     ours = cloud[_in_truck(cloud, truth, 0.1)]
-    ref_pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(ref))
-    ref_pcd.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
-    normals = np.asarray(ref_pcd.normals)
-    _, nn = cKDTree(ref).query(ours)
-    acc = np.abs(np.sum((ours - ref[nn]) * normals[nn], axis=1))
+    acc = _surface_distance(ours, ref)
     print(f"far scene: ATE {ate['rmse_m']:.3f} m, scale {ate['scale']:.4f}, median distance {np.median(acc):.3f} m")
     assert len(ours) > 5000
     assert np.median(acc) < 0.005 * L
