@@ -162,7 +162,8 @@ def _cmd_bench(args) -> int:
     results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
     model = [r for r in results if r["name"].startswith("table2:")]
     fullscale = [r for r in results if not r["name"].startswith("table2:")]
-    md, js = write_bench(out, model, "table2")
+    # A study runs only the six training trucks: its table must not overwrite a full Table 2 in the same folder.
+    md, js = write_bench(out, model, "table2-training" if args.study else "table2")
     print(table_markdown(model))
     s = bench_summary(model)
     print(json.dumps({k: s[k] for k in ("average_error_pct", "worst_single_dimension_error_pct", "median_time_s")}, indent=1))
