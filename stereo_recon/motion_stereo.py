@@ -30,6 +30,7 @@ import numpy as np
 
 from stereo_recon.disparity import DisparityConfig, depth_from_disparity, disparity_map
 from stereo_recon.errors import ConfigError
+from stereo_recon.trajectory import rotation_angle_deg
 
 
 @dataclass(frozen=True)
@@ -76,10 +77,6 @@ class MotionStereoConfig:
             raise ConfigError(f"motion stereo check_px={self.check_px}: must be > 0")
 
 
-def _rotation_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def partner_ok(T_wc_a: np.ndarray, T_wc_b: np.ndarray, depth_m: float, config: MotionStereoConfig) -> bool:
     """Whether view b makes a wide-baseline pair with view a.
 
@@ -93,7 +90,7 @@ def partner_ok(T_wc_a: np.ndarray, T_wc_b: np.ndarray, depth_m: float, config: M
     t = rel[:3, 3]
     dist = float(np.linalg.norm(t))
     return bool(dist >= config.baseline_rel * depth_m and abs(t[0]) >= config.min_lateral_frac * dist
-                and _rotation_deg(rel[:3, :3]) <= config.max_rotation_deg)
+                and rotation_angle_deg(rel[:3, :3]) <= config.max_rotation_deg)
 
 
 @dataclass(frozen=True)
@@ -167,9 +164,9 @@ def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, 
 
     rig_z = _rig_depth_in_rect(pair, depth_a_m)
     ok = np.isfinite(rig_z) & (rig_z <= depth_max_m)
-    counts = {"wide_valid": 0.0, "rig_filled": 0.0}
-    if ok.sum() < 100:
-        return rig_z, counts
+    counts = {"wide_valid": 0.0, "rig_filled": 0.0, "rig_ratio_median": float("nan")}
+    if ok.sum() < 100:  # nothing to set the search range from: the rig's depth only (or nothing)
+        return (rig_z if config.fill_from_rig else np.full_like(rig_z, np.nan)), counts
     z_lo, z_hi = np.percentile(rig_z[ok], [0.5, 99.5])
     fb = float(pair.K_rect[0, 0]) * pair.baseline_m
     d_min = max(0, int(math.floor(fb / (1.25 * z_hi))) - 1)

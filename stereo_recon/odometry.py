@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from stereo_recon.trajectory import Trajectory
+from stereo_recon.trajectory import Trajectory, rotation_angle_deg
 
 log = logging.getLogger(__name__)
 
@@ -133,10 +133,6 @@ def _T_from_rt(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
     T[:3, :3] = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))[0]
     T[:3, 3] = np.asarray(tvec, np.float64).reshape(3)
     return T
-
-
-def _angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
 
 
 def sparse_stereo_depth(left_gray: np.ndarray, right_gray: np.ndarray, uv: np.ndarray, focal_px: float,
@@ -529,7 +525,7 @@ class StereoVO:
         rel = _inv(kf.T_wc) @ T_wc
         n = len(self._pts2)
         if (n < cfg.keyframe_min_track_ratio * self._kf_tracks0 or n < cfg.keyframe_min_tracks
-                or _angle_deg(rel[:3, :3]) > cfg.keyframe_rotation_deg
+                or rotation_angle_deg(rel[:3, :3]) > cfg.keyframe_rotation_deg
                 or np.linalg.norm(rel[:3, 3]) > cfg.keyframe_translation_rel * kf.median_depth_m):
             self._make_keyframe(index, gray, ds, T_wc, link_prev=True)
         self._record(index, timestamp_s, T_wc)

@@ -69,13 +69,15 @@ def _job_config(args, resume: bool):
 
 
 def _motion_overrides(args) -> dict:
+    """Reconstruct overrides for ``--motion-stereo``, checked now (ReconstructConfig's rule), not per job."""
     if not getattr(args, "motion_stereo", False):
         return {}
-    if args.poses != "vo":
-        raise ConfigError("--motion-stereo needs --poses vo (the frames' poses must be known while streaming)")
     from stereo_recon.motion_stereo import MotionStereoConfig
+    from stereo_recon.reconstruct import ReconstructConfig
 
-    return {"motion_stereo": MotionStereoConfig()}
+    overrides = {"motion_stereo": MotionStereoConfig()}
+    ReconstructConfig(poses=args.poses, **overrides)  # raises ConfigError for --poses sfm
+    return overrides
 
 
 def _print_summary(s: dict) -> None:

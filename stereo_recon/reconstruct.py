@@ -46,6 +46,7 @@ from stereo_recon.fusion import (FusionConfig, TSDFFusion, consistent_depth_mask
                                  write_cloud_ply)
 from stereo_recon.motion_stereo import MotionStereoConfig, motion_depth, partner_ok, rectify_motion_pair
 from stereo_recon.manifest import Stopwatch, run_manifest, staged_output_dir, write_json_atomic
+from stereo_recon.trajectory import rotation_angle_deg
 from stereo_recon.video import KeyframeConfig, KeyframeSelector, open_stereo_source, validate_against_rig
 
 log = logging.getLogger(__name__)
@@ -197,7 +198,7 @@ class PoseViewSelector:
         if self._T_last is None:
             return True
         rel = np.linalg.inv(self._T_last) @ T_wc
-        angle = np.degrees(np.arccos(np.clip((np.trace(rel[:3, :3]) - 1) / 2, -1.0, 1.0)))
+        angle = rotation_angle_deg(rel[:3, :3])
         return bool(angle >= self.rotation_deg
                     or np.linalg.norm(rel[:3, 3]) >= self.translation_rel * self._depth_last_m)
 

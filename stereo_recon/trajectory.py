@@ -174,6 +174,11 @@ def _associate(est: Trajectory, gt: Trajectory) -> tuple[np.ndarray, np.ndarray]
     return ie, ig
 
 
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle (deg) of one (3, 3) rotation matrix, from its trace (as the pose selectors compare it)."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
 def _rot_angle_deg(R: np.ndarray) -> np.ndarray:
     """Rotation angles (deg) of (N,3,3) matrices; via quaternions, exact near 0 unlike arccos of the trace."""
     from scipy.spatial.transform import Rotation

@@ -117,3 +117,13 @@ def test_motion_stereo_needs_streaming_poses():
     with pytest.raises(ConfigError):
         ReconstructConfig(keyframes=None, motion_stereo=MotionStereoConfig())
     ReconstructConfig(poses="vo", motion_stereo=MotionStereoConfig())
+
+
+def test_a_view_without_rig_depth_gives_no_wide_depth():
+    """No rig depth to set the search range from: nothing is fused from the pair, and the counts stay complete."""
+    img_a, img_b, T_a, T_b, depth_a = _scene([0.6, 0.0, 0.0], -3.0)
+    pair = rectify_motion_pair(K, T_a, T_b, (W, H), (W, H))
+    z, counts = motion_depth(img_a, img_b, np.full_like(depth_a, np.nan), pair, preset("balanced"),
+                             MotionStereoConfig(), RIG_FB, 20.0)
+    assert not np.isfinite(z).any()
+    assert np.isnan(counts["rig_ratio_median"]) and counts["wide_valid"] == 0.0
