@@ -1,0 +1,70 @@
+"""benchmarks/bench_error_budget.py: the error split recovers known scale and wall offsets."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+
+from measure.cloud_io import write_cloud
+from stereo_recon.trajectory import Trajectory, write_tum
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _load_budget_module():
+    spec = importlib.util.spec_from_file_location("bench_error_budget", REPO / "benchmarks" / "bench_error_budget.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _box_surface(L, W, H, left_mm, right_mm, roof_mm, rng, n=20_000):
+    """Points on a box's two side walls and roof (truck frame), each face moved by a known offset."""
+    x = rng.uniform(-L / 2, L / 2, 3 * n)
+    zw = rng.uniform(0.1 * H, H, n)
+    yr = rng.uniform(-W / 2, W / 2, n)
+    left = np.c_[x[:n], np.full(n, W / 2 + left_mm / 1000), zw]
+    right = np.c_[x[n:2 * n], np.full(n, -W / 2 - right_mm / 1000), zw]
+    roof = np.c_[x[2 * n:], yr, np.full(n, H + roof_mm / 1000)]
+    return np.vstack([left, right, roof]) + rng.normal(0, 0.0005, (3 * n, 3))
+
+
+def test_budget_recovers_scale_walls_and_measurement_share(tmp_path, rng):
+    L, W, H = 2.0, 0.4, 0.4
+    yaw = np.radians(30)
+    T_wt = np.eye(4)
+    T_wt[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+    T_wt[:3, 3] = [0.3, -0.2, 0.0]
+    # Ground-truth orbit; the run's trajectory and cloud are the truth shrunk by 0.5 % about the origin.
+    n = 24
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    T_gt = np.repeat(np.eye(4)[None], n, 0)
+    T_gt[:, :3, 3] = np.c_[2 * np.cos(a), 2 * np.sin(a), np.full(n, 1.0)]
+    k = 0.995
+    T_est = T_gt.copy()
+    T_est[:, :3, 3] *= k
+    idx = np.arange(n)
+    scene, run = tmp_path / "scenes" / "t", tmp_path / "runs" / "t"
+    scene.mkdir(parents=True)
+    run.mkdir(parents=True)
+    write_tum(scene / "poses_gt.txt", Trajectory(idx, idx / 15.0, T_gt))
+    write_tum(run / "poses.txt", Trajectory(idx, idx / 15.0, T_est))
+    pts_truck = _box_surface(L, W, H, left_mm=2.0, right_mm=-3.0, roof_mm=-1.0, rng=rng)
+    world = pts_truck @ T_wt[:3, :3].T + T_wt[:3, 3]
+    write_cloud(run / "cloud.ply", k * world)
+    truth = {"fps": 15.0, "length_m": L, "width_m": W, "height_m": H,
+             "truck": {"body": "box", "T_world_truck": T_wt.tolist()}}
+    (scene / "truth.json").write_text(json.dumps(truth))
+    measured_w = k * (W - 0.001) - 0.002  # walls' net -1 mm, then a measurement 2 mm narrower still
+    (run / "measurement.json").write_text(json.dumps({"width_m": measured_w, "height_m": k * H}))
+
+    r = _load_budget_module().budget(run, scene)
+    assert abs(r["scale_pct"] - (100 * (k - 1))) < 0.01
+    assert abs(r["wall_left_mm"] - 2.0) < 0.2
+    assert abs(r["wall_right_mm"] + 3.0) < 0.2
+    assert abs(r["roof_mm"] + 1.0) < 0.2
+    assert abs(r["width_err_pct"] - 100 * (measured_w / W - 1)) < 1e-9
+    # The measurement's share is what scale and walls leave: -2 mm of 0.4 m (x k) = -0.50 %.
+    assert abs(r["width_measurement_pct"] - (-0.5)) < 0.06
