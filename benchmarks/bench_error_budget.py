@@ -29,7 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from measure.cloud_io import read_cloud  # noqa: E402
-from stereo_recon.trajectory import align_umeyama, read_tum  # noqa: E402
+from stereo_recon.trajectory import align_trajectories, read_tum  # noqa: E402
 
 
 def face_offsets_mm(points_truck: np.ndarray, L: float, W: float, H: float, walls: bool) -> dict:
@@ -57,10 +57,7 @@ def budget(run_dir: Path, scene_dir: Path) -> dict:
     """The error split of one truck (see the module docstring)."""
     truth = json.loads((scene_dir / "truth.json").read_text())
     fps = float(truth.get("fps", 15.0))
-    est = read_tum(run_dir / "poses.txt", fps=fps)
-    gt = read_tum(scene_dir / "poses_gt.txt", fps=fps)
-    common, ie, ig = np.intersect1d(est.indices, gt.indices, return_indices=True)
-    s, R, t = align_umeyama(est.T_wc[ie, :3, 3], gt.T_wc[ig, :3, 3])
+    s, R, t = align_trajectories(read_tum(run_dir / "poses.txt", fps=fps), read_tum(scene_dir / "poses_gt.txt", fps=fps))
     T_wt = np.asarray(truth["truck"]["T_world_truck"], dtype=np.float64)
     world = s * (read_cloud(run_dir / "cloud.ply") @ R.T) + t
     truck = (world - T_wt[:3, 3]) @ T_wt[:3, :3]
@@ -70,7 +67,7 @@ def budget(run_dir: Path, scene_dir: Path) -> dict:
     m = json.loads((run_dir / "measurement.json").read_text())
     w_err = 100 * (m["width_m"] / W - 1)
     h_err = 100 * (m["height_m"] / H - 1)
-    scale_pct = 100 * (1 / s - 1)  # the run's cloud is 1/s times the true size
+    scale_pct = 100 * (1 / s - 1)  # the run's cloud is 1/s times the true size (trajectory.scale_error)
     walls_pct = 100 * (faces["wall_left_mm"] + faces["wall_right_mm"]) / 1000 / W
     return {"name": run_dir.name, "body": body, "scale_pct": scale_pct, **faces, "width_err_pct": w_err,
             "width_from_walls_pct": walls_pct, "width_measurement_pct": w_err - scale_pct - walls_pct,

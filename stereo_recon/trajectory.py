@@ -245,10 +245,19 @@ def relative_pose_error(est: Trajectory, gt: Trajectory, delta: int = 1) -> dict
     }
 
 
+def align_trajectories(est: Trajectory, gt: Trajectory, with_scale: bool = True):
+    """Similarity (s, R, t) with gt centre ~ s R est centre + t, frames matched by index (Umeyama).
+
+    Maps est's world frame onto gt's: apply it to anything est's run produced (its cloud) to
+    compare with gt's world.
+    """
+    ie, ig = _associate(est, gt)
+    return align_umeyama(est.centres_m[ie], gt.centres_m[ig], with_scale=with_scale)
+
+
 def scale_error(est: Trajectory, gt: Trajectory) -> float:
     """Relative scale error ``s - 1`` of the similarity aligning est onto gt (0 for a perfectly metric est)."""
-    ie, ig = _associate(est, gt)
-    s, _, _ = align_umeyama(est.centres_m[ie], gt.centres_m[ig], with_scale=True)
+    s, _, _ = align_trajectories(est, gt)
     return float(1.0 / s - 1.0)
 
 
