@@ -64,6 +64,11 @@ class FusionConfig:
     # noise per view) 0.05 drops a third of the surface, so the default stays at 0.1.
     edge_step_rel: float | None = 0.1
     edge_window_px: int = 5
+    # Drop only the far side of a step (see ``depth_edge_mask``): the near side cannot carve the surface
+    # behind it and holds thin parts. Measured (``stereo-recon bench --trucks 1-20``, VO): truck 12's
+    # flatbed width -3.55 % -> -2.24 %, every dimension of the 20 trucks within 2.5 % (worst 2.44 %),
+    # overall 0.70 % instead of 0.72 %; the 12 m truck W -0.97 % -> -0.94 %.
+    edge_far_side_only: bool = True
     # Optional world-frame axis-aligned box (min xyz, max xyz) in m; depth outside it is not integrated.
     roi_min_m: tuple[float, float, float] | None = None
     roi_max_m: tuple[float, float, float] | None = None
@@ -99,13 +104,14 @@ def voxel_size_from_depth(depth_m: np.ndarray, focal_px: float, footprint_px: fl
     return float(min(max(v, min_voxel_m), max_voxel_m))
 
 
-def depth_edge_mask(depth_m: np.ndarray, step_rel: float, window_px: int = 5) -> np.ndarray:
+def depth_edge_mask(depth_m: np.ndarray, step_rel: float, window_px: int = 5, far_side_only: bool = False) -> np.ndarray:
     """Pixels near a depth discontinuity: (H, W) bool.
 
     A discontinuity is where the second difference of depth along a row or a column (three valid pixels)
     exceeds step_rel x the depth: a step, not a slope, so surfaces seen at grazing angles (large but
     linear depth changes) are kept. Every valid pixel within ``window_px // 2`` of one is flagged, which
-    covers both sides of the step (background bleeding a few pixels over a silhouette).
+    covers both sides of the step (background bleeding a few pixels over a silhouette); with
+    ``far_side_only`` only those deeper than the nearest depth across the step by step_rel x depth.
     depth_m: (H, W) float metres, 0 = invalid.
     """
     import cv2
@@ -121,6 +127,13 @@ def depth_edge_mask(depth_m: np.ndarray, step_rel: float, window_px: int = 5) ->
     r = max(int(window_px) // 2 - 1, 0)  # the second difference already marks one pixel on each side
     if r > 0:
         step = cv2.dilate(step.view(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)).view(bool)
+    if far_side_only:
+        # Keep the near side: a too-near depth lies behind the truncation band of the true surface and
+        # changes nothing there, while a too-far one carves it; and the near side of a step is often a
+        # thin part worth keeping (a flatbed deck's 15 mm edge face is ~3 px at the fusion resolution).
+        k = 2 * r + 5  # reaches the nearest pixel across the step from any flagged pixel
+        zmin = cv2.erode(np.where(valid, z, np.float32(np.inf)), np.ones((k, k), np.uint8))
+        step &= z - zmin > thr
     return valid & step
 
 
@@ -266,7 +279,7 @@ class TSDFFusion:
         bad = ~np.isfinite(z) | (z < c.depth_min_m) | (z > c.depth_max_m)
         z[bad] = 0.0
         if c.edge_step_rel is not None:
-            z[depth_edge_mask(z, c.edge_step_rel, c.edge_window_px)] = 0.0
+            z[depth_edge_mask(z, c.edge_step_rel, c.edge_window_px, c.edge_far_side_only)] = 0.0
         if c.roi_min_m is not None:
             h, w = z.shape
             v, u = np.nonzero(z > 0)

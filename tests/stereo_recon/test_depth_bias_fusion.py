@@ -125,6 +125,10 @@ def test_depth_edge_mask_flags_steps_not_slopes():
     assert not m[0, 0]
     steep = np.tile(np.linspace(1.0, 3.0, 100, dtype=np.float32), (40, 1))  # 1 %/px: a wall at a grazing angle
     assert not depth_edge_mask(steep, 0.05, 5).any()
+    # Far side only: the deeper pixels (columns 60, 61) are flagged, the nearer ones (58, 59) kept.
+    far = depth_edge_mask(z, 0.05, 5, far_side_only=True)
+    assert far[1:, 60:62].all() and not far[:, :60].any() and not far[:, 62:].any()
+    assert not depth_edge_mask(steep, 0.05, 5, far_side_only=True).any()
 
 
 def test_consistent_depth_mask_keeps_what_other_views_reproduce(box_on_ground):
