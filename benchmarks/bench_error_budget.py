@@ -74,6 +74,10 @@ def budget(run_dir: Path, scene_dir: Path) -> dict:
             "height_err_pct": h_err, "height_from_roof_pct": 100 * faces["roof_mm"] / 1000 / H}
 
 
+def _fmt(v: float, unit: str = "") -> str:
+    return f"{v:+.2f}{unit}" if np.isfinite(v) else "-"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("bench_dir", type=Path)
@@ -92,9 +96,7 @@ def main() -> int:
             continue
         r = budget(rd, sd)
         rows.append(r)
-
-        def f(v, unit=""):
-            return f"{v:+.2f}{unit}" if np.isfinite(v) else "-"
+        f = _fmt
         print(f"{r['name']:13s} {r['body']:8s} {f(r['scale_pct'], '%'):>7s} {f(r['wall_left_mm']):>7s} "
               f"{f(r['wall_right_mm']):>7s} {f(r['roof_mm']):>7s} | {f(r['width_err_pct'], '%'):>7s} = "
               f"{f(r['scale_pct']):>6s} + {f(r['width_from_walls_pct']):>6s} + {f(r['width_measurement_pct']):>6s} | "
