@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import os
 import time
 from dataclasses import dataclass, field, fields
@@ -326,9 +327,31 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     )
 
 
+def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_rel_sigma: dict | None):
+    """One standard uncertainty per dimension: the measurement's own and the reconstruction's, in quadrature.
+
+    values_m / measurement_u_m: {length, width, height} in metres (the cloud's measurement and its
+    uncertainty). reconstruction_rel_sigma: {length, width, height} relative standard error of the
+    cloud itself (e.g. 0.0144 = 1.44 % of the width), or None when the cloud is taken as exact.
+    Returns (uncertainty_m, parts or None); ConfigError for a negative or non-finite share.
+    """
+    if not reconstruction_rel_sigma:
+        return dict(measurement_u_m), None
+    rel = {}
+    for d in ("length", "width", "height"):
+        r = reconstruction_rel_sigma.get(d, 0.0)
+        if not (isinstance(r, (int, float)) and math.isfinite(r) and r >= 0):
+            raise ConfigError(f"reconstruction_rel_sigma[{d!r}] must be a finite number >= 0, got {r!r}")
+        rel[d] = float(r)
+    recon = {d: rel[d] * abs(float(values_m[d])) for d in rel}
+    total = {d: float(math.hypot(float(measurement_u_m[d]), recon[d])) for d in rel}
+    return total, {"measurement_m": dict(measurement_u_m), "reconstruction_m": recon, "reconstruction_rel_sigma": rel}
+
+
 def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfig(), up_hint=None, centre_hint=None,
                        regulation: str = "cn-2016-62", vehicle_class: str | None = None, scale: float | None = None,
-                       plots: bool = True, html: bool = True, k_sigma: float = 2.0) -> dict:
+                       plots: bool = True, html: bool = True, k_sigma: float = 2.0,
+                       reconstruction_rel_sigma: dict | None = None) -> dict:
     """Measure the truck in a cloud file; write ``out_dir/measurement.json`` (+ PNG plots, report.html).
 
     Output is written into a staging folder and moved into ``out_dir`` only when everything
@@ -336,7 +359,8 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
 
     measurement.json: ``length_m``, ``width_m``, ``height_m`` (metres, real size of what was
     measured, no scale applied), ``uncertainty_m`` {length, width, height} (one standard
-    uncertainty), ``verdict`` (measure.limits.over_limit_verdict), ``rules`` (which rule gave each
+    uncertainty: the measurement's own, combined with ``reconstruction_rel_sigma`` x the value when
+    given, the parts then under ``uncertainty_parts``), ``verdict`` (measure.limits.over_limit_verdict), ``rules`` (which rule gave each
     number), ``bandwidths_m`` and ``bandwidth_rules`` (Eq. 8), ``bootstrap_std_m``, ``warnings``,
     ``ground_plane`` (normal, offset, inlier rate, rms, iterations, initial normal and its source),
     ``clusters`` (counts, rejections per filter with an example, candidates, selection rule,
@@ -356,10 +380,12 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     t_read = time.perf_counter() - t0
     m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre_hint, rng=config.seed, source=str(cloud_path))
     sha = sha256_file(cloud_path)
-    verdict = over_limit_verdict({"length": m.length_m, "width": m.width_m, "height": m.height_m}, m.uncertainty_m, reg,
-                                 vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
+    values = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
+    uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma)
+    verdict = over_limit_verdict(values, uncertainty, reg, vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
     result = {
-        "length_m": m.length_m, "width_m": m.width_m, "height_m": m.height_m, "uncertainty_m": m.uncertainty_m,
+        "length_m": m.length_m, "width_m": m.width_m, "height_m": m.height_m, "uncertainty_m": uncertainty,
+        **({"uncertainty_parts": parts} if parts else {}),
         "verdict": verdict,
         **{k: v for k, v in m.summary().items() if k not in ("length_m", "width_m", "height_m", "uncertainty_m")},
         "input": {"path": str(cloud_path.resolve()), "sha256": sha, "n_points": len(pts)},

@@ -269,6 +269,12 @@ def render_report_html(
     add("<table class='dims'><tr>" + "".join(f"<th>{h}</th>" for h in head) + f"</tr>{rows}</table>")
     add("<p class='small'>Over: the whole interval lies above the limit. Within: the whole interval is at or "
         "below the limit. Undecided: the limit lies inside the interval. Margin = limit &minus; value.</p>")
+    u_parts = measurement.get("uncertainty_parts")
+    if isinstance(u_parts, Mapping) and isinstance(u_parts.get("reconstruction_rel_sigma"), Mapping):
+        rel = u_parts["reconstruction_rel_sigma"]
+        shares = ", ".join(f"{_e(d)} {100 * float(rel.get(d, 0.0)):.2f}&nbsp;%" for d in DIMENSIONS)
+        add("<p class='small'>&sigma; combines the measurement's own uncertainty (bootstrap, point spacing, noise) "
+            f"with the reconstruction's validated relative error ({shares} of each dimension).</p>")
     warnings = measurement.get("warnings") or []
     if isinstance(warnings, str):
         warnings = [warnings]

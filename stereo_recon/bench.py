@@ -82,11 +82,35 @@ def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int 
 _EXPECTED_TO_VERDICT = {"over-limit": "over", "within-limits": "within", "not-applicable": "not-applicable"}
 
 
-def verdict_matches(expected: str | None, got: str | None) -> bool | None:
-    """Whether the measured overall verdict is the one the scene's truth expects (None: no expectation)."""
+def verdict_matches(expected: str | None, verdict: dict | str | None, truth_m: dict | None = None) -> bool | None:
+    """Whether the measured verdict is right for the scene's truth (None: the truth expects nothing).
+
+    expected: truth.json's over-limit expectation ("over-limit", "within-limits", "not-applicable").
+    verdict: the measurement's verdict (its "overall", and per dimension value_m, uncertainty_m,
+    limit_m, verdict; "k_sigma") or just the overall word. truth_m: true length/width/height (m).
+    With the dimensions and the truth, every dimension's verdict must be right: "over" only above
+    the limit, "within" only at or below it, and "undecided" only where the true value lies within
+    the measurement's own k-sigma interval of the limit (a truck built exactly to a limit: no
+    measurement this precise can tell, and "undecided" is the honest answer, not an error).
+    """
     if expected is None:
         return None
-    return _EXPECTED_TO_VERDICT.get(expected, expected) == got
+    overall = verdict.get("overall") if isinstance(verdict, dict) else verdict
+    want = _EXPECTED_TO_VERDICT.get(expected, expected)
+    dims = verdict.get("dimensions") if isinstance(verdict, dict) else None
+    if want == "not-applicable" or not dims or truth_m is None:
+        return want == overall
+    k = float(verdict.get("k_sigma", 2.0))
+    for d, e in dims.items():
+        lim, status, true = e.get("limit_m"), e.get("verdict"), truth_m.get(d)
+        if lim is None or true is None or status == "no-limit":
+            continue
+        u = e.get("uncertainty_m")
+        right = {"over": true > lim, "within": true <= lim,
+                 "undecided": u is not None and abs(true - lim) <= k * u}.get(status, False)
+        if not right:
+            return False
+    return overall == want or (overall == "undecided" and want in ("within", "over"))
 
 
 def table_markdown(results: Sequence[dict]) -> str:

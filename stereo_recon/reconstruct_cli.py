@@ -41,7 +41,13 @@ def register(subparsers) -> None:
     p.add_argument("--motion-stereo", action="store_true",
                    help="match each fused view with a later frame ~0.11 x the depth away (a wide baseline) and fuse "
                         "that depth, also on near scenes (far scenes get it anyway); vo or gt poses only")
+    p.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
+                   help="bundle-adjust the fused views' VO poses with pycolmap SfM (auto: far scenes only; vo poses)")
     p.set_defaults(func=run)
+
+
+# --refine-poses -> ReconstructConfig.refine_poses_sfm
+REFINE_POSES_CHOICES = {"auto": None, "on": True, "off": False}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         disparity_preset=args.preset, voxel_m=args.voxel_m, mesh=args.mesh, gpu=args.gpu,
         keyframes=None if args.all_frames else ReconstructConfig().keyframes, keep_work=args.keep_work,
         motion_stereo=MotionStereoConfig() if args.motion_stereo else None,
+        refine_poses_sfm=REFINE_POSES_CHOICES[args.refine_poses],
     )
     progress = TerminalProgress(enabled=None if not getattr(args, "quiet", False) else False)
     calib_path = Path(args.calib) if Path(args.calib).exists() else None

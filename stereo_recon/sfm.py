@@ -70,8 +70,11 @@ class SfMConfig:
     scale_depth_max_m: float = 20.0
     # At least this many depth/SfM correspondences are needed for a metric scale.
     scale_min_samples: int = 50
-    # Threads for pycolmap (-1: all cores).
-    num_threads: int = -1
+    # Threads for pycolmap (-1: all cores). One by default: COLMAP's multi-threaded matching and
+    # bundle adjustment differ between identical runs in the last digits, which moves the fused cloud
+    # (the 12 m preset's far-scene refinement: different cloud bytes per run); one thread repeats
+    # exactly, at ~1.3x the time (poses stage there 29 s instead of 23 s).
+    num_threads: int = 1
     # Seed of pycolmap's RANSAC and mapper.
     seed: int = 0
 

@@ -255,6 +255,28 @@ def align_trajectories(est: Trajectory, gt: Trajectory, with_scale: bool = True)
     return align_umeyama(est.centres_m[ie], gt.centres_m[ig], with_scale=with_scale)
 
 
+def graft_poses(base: Trajectory, refined: Trajectory) -> tuple[Trajectory, dict]:
+    """base's trajectory with the poses of the frames ``refined`` has replaced by refined's, in base's world.
+
+    refined (e.g. bundle-adjusted poses of a subset of frames) is mapped onto base's world frame and
+    scale by the similarity of their common camera centres; the frames only base has get the
+    correction (refined-from-base) of the nearest refined frame by index, so the whole trajectory
+    stays smooth. Returns (trajectory, stats with the similarity's scale and the corrections' size).
+    """
+    ib, ir = _associate(base, refined)  # ValueError below 3 common frames
+    s, R, t = align_umeyama(refined.centres_m[ir], base.centres_m[ib], with_scale=True)
+    new = refined.transformed(s, R, t).T_wc[ir]
+    corr = new @ np.linalg.inv(base.T_wc[ib])  # world-from-world corrections of the refined frames
+    nearest = np.abs(base.indices[:, None] - base.indices[ib][None, :]).argmin(axis=1)
+    T = corr[nearest] @ base.T_wc
+    T[ib] = new
+    moved = np.linalg.norm(new[:, :3, 3] - base.T_wc[ib, :3, 3], axis=1)
+    turned = _rot_angle_deg(np.einsum("nji,njk->nik", base.T_wc[ib, :3, :3], new[:, :3, :3]))
+    stats = {"grafted_frames": int(len(ib)), "similarity_scale": float(s),
+             "moved_m_median": float(np.median(moved)), "turned_deg_median": float(np.median(turned))}
+    return Trajectory(base.indices.copy(), base.timestamps_s.copy(), T, dict(base.stats)), stats
+
+
 def scale_error(est: Trajectory, gt: Trajectory) -> float:
     """Relative scale error ``s - 1`` of the similarity aligning est onto gt (0 for a perfectly metric est)."""
     s, _, _ = align_trajectories(est, gt)

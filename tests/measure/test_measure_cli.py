@@ -129,3 +129,38 @@ def test_hints_and_config_file(truck_ply, tmp_path, capsys):
     assert m["clusters"]["selection_rule"] == "nearest_to_centre_hint"
     assert m["parameters"]["eps_res"] == 3.5 and m["parameters"]["bootstrap"] == 4
     assert abs(m["length_m"] - truth["length_m"]) / truth["length_m"] < 0.01
+
+
+def test_reconstruction_error_widens_the_verdict_interval(tmp_path):
+    """A truck 5 cm under the width limit: measured alone it is within; with the reconstruction's own
+    1.44 % (2 sigma = 7 cm at 2.5 m) the limit falls inside the interval and the verdict is undecided."""
+    from measure.pipeline import combined_uncertainty, measure_cloud_file
+    from measure.synthetic_cloud import TruckShape
+
+    pts, truth = make_truck_scene(TruckShape(length_m=12.0, width_m=2.50, height_m=3.6),
+                                  SceneSpec(spacing_m=0.04, noise_m=0.01), rng=5)
+    path = tmp_path / "truck.ply"
+    write_cloud(path, pts)
+    alone = measure_cloud_file(path, tmp_path / "a", plots=False, html=False)
+    assert abs(alone["width_m"] - 2.50) < 0.02
+    assert alone["verdict"]["dimensions"]["width"]["verdict"] == "within" and "uncertainty_parts" not in alone
+    rel = {"length": 0.0032, "width": 0.0144, "height": 0.0051}
+    both = measure_cloud_file(path, tmp_path / "b", plots=False, html=True, reconstruction_rel_sigma=rel)
+    assert both["verdict"]["dimensions"]["width"]["verdict"] == "undecided"
+    u, parts = both["uncertainty_m"], both["uncertainty_parts"]
+    for d in ("length", "width", "height"):
+        assert u[d] == pytest.approx(np.hypot(parts["measurement_m"][d], rel[d] * both[f"{d}_m"]))
+        assert parts["measurement_m"][d] == pytest.approx(alone["uncertainty_m"][d])
+    assert "validated relative error" in (tmp_path / "b" / "report.html").read_text()
+    with pytest.raises(Exception, match="reconstruction_rel_sigma"):
+        combined_uncertainty({"length": 1, "width": 1, "height": 1}, {"length": 0, "width": 0, "height": 0}, {"width": -0.1})
+
+
+def test_run_parses_the_reconstruction_sigma_option():
+    from stereo_recon.errors import ConfigError
+    from stereo_recon.pipeline_cli import _parse_sigma_pct
+
+    assert _parse_sigma_pct("0.3,1.5,0.5") == pytest.approx({"length": 0.003, "width": 0.015, "height": 0.005})
+    for bad in ("1,2", "a,b,c", "1,-1,1", "1,nan,1"):
+        with pytest.raises(ConfigError, match="reconstruction-sigma-pct"):
+            _parse_sigma_pct(bad)

@@ -53,6 +53,31 @@ def test_verdict_matches_truth_vocabulary():
     assert verdict_matches(None, "over") is None
 
 
+def _verdict(height_m, u_m, overall, status, k=2.0):
+    return {"overall": overall, "k_sigma": k, "dimensions": {
+        "length": {"value_m": 12.0, "uncertainty_m": 0.01, "limit_m": 18.1, "verdict": "within"},
+        "height": {"value_m": height_m, "uncertainty_m": u_m, "limit_m": 4.0, "verdict": status}}}
+
+
+@pytest.mark.parametrize(
+    "true_h, expected, verdict, right",
+    [
+        # a truck built exactly to the 4.0 m limit, measured 3.998 +- 2 x 6 mm: undecided is the honest answer
+        (4.0, "within-limits", _verdict(3.998, 0.006, "undecided", "undecided"), True),
+        # 3.9 m true, measured 3.99 +- 2 x 10 mm: undecided although the truth is 10 cm under: wrong
+        (3.9, "within-limits", _verdict(3.99, 0.010, "undecided", "undecided"), False),
+        (3.9, "within-limits", _verdict(3.91, 0.010, "within", "within"), True),
+        # "within" for a truck that is over, even by a little: wrong
+        (4.01, "over-limit", _verdict(3.97, 0.010, "within", "within"), False),
+        (4.3, "over-limit", _verdict(4.29, 0.010, "over", "over"), True),
+        # just over, within the uncertainty: undecided is right
+        (4.005, "over-limit", _verdict(3.999, 0.006, "undecided", "undecided"), True),
+    ],
+)
+def test_verdict_is_judged_per_dimension_against_the_truth(true_h, expected, verdict, right):
+    assert verdict_matches(expected, verdict, {"length": 12.0, "width": 2.5, "height": true_h}) is right
+
+
 def test_study_sweeps_the_paper_values_and_scores_our_default(tmp_path):
     """The d_h study re-measures clouds over 0.06-0.08 m and adds our scale-free default as its own row."""
     import numpy as np

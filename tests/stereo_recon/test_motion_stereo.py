@@ -119,6 +119,16 @@ def test_motion_stereo_needs_streaming_poses():
     ReconstructConfig(poses="vo", motion_stereo=MotionStereoConfig())
 
 
+def test_pose_refinement_is_for_visual_odometry_only():
+    from stereo_recon.reconstruct import ReconstructConfig
+
+    for poses in ("sfm", "gt:poses.txt"):
+        with pytest.raises(ConfigError, match="refine-poses"):
+            ReconstructConfig(poses=poses, refine_poses_sfm=True)
+        ReconstructConfig(poses=poses, refine_poses_sfm=False)
+    ReconstructConfig(poses="vo", refine_poses_sfm=True)
+
+
 def test_a_view_without_rig_depth_gives_no_wide_depth():
     """No rig depth to set the search range from: nothing is fused from the pair, and the counts stay complete."""
     img_a, img_b, T_a, T_b, depth_a = _scene([0.6, 0.0, 0.0], -3.0)

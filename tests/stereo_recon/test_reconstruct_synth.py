@@ -136,26 +136,33 @@ def test_motion_stereo_views_are_fused_and_accurate(tmp_path_factory, tmp_path):
 
 
 def test_far_scene_switches_to_motion_stereo(tmp_path_factory, tmp_path):
-    """A full-scale truck (5-8 px of rig disparity): VO on dense depth, motion stereo, trajectory rescaled."""
-    from scipy.spatial import cKDTree
-
+    """A full-scale truck (5-8 px of rig disparity), end to end: VO on dense depth, SfM bundle adjustment
+    of the fused views, motion stereo, trajectory rescaled, measurement and verdict."""
+    from stereo_recon.bench import verdict_matches
+    from stereo_recon.pipeline import RunConfig, run_video
     from stereo_recon.synthetic.sequence import render_sequence
     from stereo_recon.trajectory import absolute_trajectory_error, align_umeyama
 
-    d = tmp_path_factory.mktemp("synth") / "full24"
+    d = tmp_path_factory.mktemp("synth") / "full"
     render_sequence("full-truck", d, seed=0, depth=True)  # the preset: 60 HD720 frames, 6 deg apart
     truth = json.loads((d / "truth.json").read_text())
     rig = load_rig(d / "rig.yaml")
-    man = reconstruct(d / "video.avi", rig, tmp_path / "out", ReconstructConfig())
-    counts = man["counts"]
+    out = tmp_path / "out"
+    summary = run_video(d / "video.avi", d / "SN28000001.conf", out, RunConfig(quiet=True))
+    counts = json.loads((out / "run.json").read_text())["counts"]
     assert counts["far_scene"] and counts["first_view_disparity_px"] < 16
     assert counts["frames_depth"] >= counts["frames_read"] - 2  # dense depth for VO from the second frame on
     assert counts["motion_stereo_views"] >= counts["keyframes_fused"] - 2
     assert abs(counts["trajectory_scale_from_rig"] - 1) < 0.02
+    refine = counts["sfm_refine"]
+    assert isinstance(refine, dict) and refine["registered"] >= 0.9 * refine["images"], refine
     gt = read_tum(d / "poses_gt.txt", fps=truth["fps"])
-    est = read_tum(tmp_path / "out" / "poses.txt", fps=truth["fps"])
+    est = read_tum(out / "poses.txt", fps=truth["fps"])
     ate = absolute_trajectory_error(est, gt)
-    cloud = np.asarray(o3d.io.read_point_cloud(str(tmp_path / "out" / "cloud.ply")).points)
+    # VO alone turns the views by 0.29 deg rms here (0.43 on the over-height preset), in step with
+    # sideways shifts of ~4 cm; bundle-adjusted: 0.07 deg, ATE 13 mm.
+    assert ate["rot_rmse_deg"] < 0.15 and ate["rmse_m"] < 0.03, ate
+    cloud = np.asarray(o3d.io.read_point_cloud(str(out / "cloud.ply")).points)
     # VO's frame -> the true world, rigidly (a scale error must show), before comparing with the truth.
     gt_at = {int(i): T for i, T in zip(gt.indices, gt.T_wc)}
     _, R, t = align_umeyama(est.T_wc[:, :3, 3], np.array([gt_at[int(i)][:3, 3] for i in est.indices]), with_scale=False)
@@ -167,6 +174,14 @@ def test_far_scene_switches_to_motion_stereo(tmp_path_factory, tmp_path):
     print(f"far scene: ATE {ate['rmse_m']:.3f} m, scale {ate['scale']:.4f}, median distance {np.median(acc):.3f} m")
     assert len(ours) > 5000
     assert np.median(acc) < 0.005 * L
+    # The issue's target is 1 % per dimension (`stereo-recon bench` measured L -0.01, W -0.69, H -0.05 %
+    # on this scene); the margin here is for other library builds.
+    err = {k: 100 * (summary[f"{k}_m"] / truth[f"{k}_m"] - 1) for k in ("length", "width", "height")}
+    assert abs(err["length"]) < 0.5 and abs(err["height"]) < 0.5 and abs(err["width"]) < 1.2, err
+    # Built exactly to the 2.55 m / 4.00 m limits: "within" or, within the measurement's 2 sigma of a
+    # limit, "undecided" - never "over".
+    assert summary["verdict"]["overall"] != "over"
+    assert verdict_matches("within-limits", summary["verdict"], {k: truth[f"{k}_m"] for k in ("length", "width", "height")})
 
 
 def test_synthetic_depth_maps_match_ground_truth(synth_vga):

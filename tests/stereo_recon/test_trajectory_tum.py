@@ -11,6 +11,7 @@ from stereo_recon.trajectory import (
     Trajectory,
     absolute_trajectory_error,
     align_umeyama,
+    graft_poses,
     read_tum,
     relative_pose_error,
     scale_error,
@@ -126,3 +127,30 @@ def test_up_falls_back_to_camera_y_when_collinear():
     expected = -line.T_wc[:, :3, 1].mean(0)
     assert np.allclose(up, expected / np.linalg.norm(expected))
     assert up @ np.array([0, 0, 1.0]) > 0.5
+
+
+def test_graft_poses_puts_refined_frames_in_base_world_and_carries_corrections():
+    gt = _orbit(n=36)
+    # base: the truth with a wobble (rotations in step with sideways shifts, as VO's at full scale)
+    base = Trajectory(gt.indices, gt.timestamps_s, gt.T_wc.copy())
+    for k in range(len(gt)):
+        a = 0.004 * np.sin(2 * np.pi * k / 18)
+        base.T_wc[k, :3, :3] = base.T_wc[k, :3, :3] @ Rotation.from_rotvec([0, a, 0]).as_matrix()
+        base.T_wc[k, :3, 3] += base.T_wc[k, :3, :3] @ np.array([-5.0 * a, 0, 0])
+    # refined: every other frame exactly, but in its own world frame and scale (as SfM returns them)
+    sel = np.arange(0, 36, 2)
+    R = Rotation.from_euler("zyx", [40, -8, 3], degrees=True).as_matrix()
+    refined = gt.subset(sel).transformed(0.37, R, np.array([1.0, -2.0, 0.5]))
+    out, stats = graft_poses(base, refined)
+    assert stats["grafted_frames"] == len(sel) and abs(stats["similarity_scale"] - 1 / 0.37) < 1e-3
+    assert np.array_equal(out.indices, base.indices)
+    # the refined frames are the truth, in base's world (the wobble averages out of the similarity)
+    ate = absolute_trajectory_error(out.subset(sel), gt.subset(sel), with_scale=False)
+    assert ate["rmse_m"] < 2e-3 and ate["rot_max_deg"] < 0.05
+    # the others take their neighbour's correction: closer to the truth than base was
+    odd = np.arange(1, 36, 2)
+    before = absolute_trajectory_error(base.subset(odd), gt.subset(odd), with_scale=False)
+    after = absolute_trajectory_error(out.subset(odd), gt.subset(odd), with_scale=False)
+    assert after["rot_rmse_deg"] < 0.5 * before["rot_rmse_deg"]
+    with pytest.raises(ValueError, match="common frames|share only"):
+        graft_poses(base, gt.subset(np.array([0, 1])))
