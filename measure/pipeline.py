@@ -335,10 +335,12 @@ def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_r
     cloud itself (e.g. 0.0144 = 1.44 % of the width), or None when the cloud is taken as exact.
     Returns (uncertainty_m, parts or None); ConfigError for a negative or non-finite share.
     """
+    from measure.limits import DIMENSIONS
+
     if not reconstruction_rel_sigma:
         return dict(measurement_u_m), None
     rel = {}
-    for d in ("length", "width", "height"):
+    for d in DIMENSIONS:
         r = reconstruction_rel_sigma.get(d, 0.0)
         if not (isinstance(r, (int, float)) and math.isfinite(r) and r >= 0):
             raise ConfigError(f"reconstruction_rel_sigma[{d!r}] must be a finite number >= 0, got {r!r}")
@@ -360,8 +362,8 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     measurement.json: ``length_m``, ``width_m``, ``height_m`` (metres, real size of what was
     measured, no scale applied), ``uncertainty_m`` {length, width, height} (one standard
     uncertainty: the measurement's own, combined with ``reconstruction_rel_sigma`` x the value when
-    given, the parts then under ``uncertainty_parts``), ``verdict`` (measure.limits.over_limit_verdict), ``rules`` (which rule gave each
-    number), ``bandwidths_m`` and ``bandwidth_rules`` (Eq. 8), ``bootstrap_std_m``, ``warnings``,
+    given, the parts then under ``uncertainty_parts``), ``verdict`` (measure.limits.over_limit_verdict),
+    ``rules`` (which rule gave each number), ``bandwidths_m`` and ``bandwidth_rules`` (Eq. 8), ``bootstrap_std_m``, ``warnings``,
     ``ground_plane`` (normal, offset, inlier rate, rms, iterations, initial normal and its source),
     ``clusters`` (counts, rejections per filter with an example, candidates, selection rule,
     merged labels), ``parameters`` (every MeasureConfig field plus the resolved metres),

@@ -58,8 +58,9 @@ class RunPaths:
 # errors over the 20 rendered Table 2 trucks and the two full-scale presets, 2026-11-23): the
 # measurement's bootstrap only sees the cloud's scatter, not how far the fused walls sit from the
 # truth (widths read 1.3 % small on average; the bootstrap says 0.2 %), so without this term a
-# verdict's interval would be several times too narrow. Real flights are harder than renders: treat it as a floor, and override it
-# (``--reconstruction-sigma-pct``) with figures from a site's own reference vehicles.
+# verdict's interval would be several times too narrow. Real flights are harder than renders:
+# treat it as a floor, and override it (``--reconstruction-sigma-pct``) with figures from a
+# site's own reference vehicles.
 RECONSTRUCTION_REL_SIGMA = {"length": 0.0032, "width": 0.0144, "height": 0.0051}
 
 

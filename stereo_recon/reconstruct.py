@@ -130,7 +130,7 @@ class ReconstructConfig:
     # Why: at full scale VO's rotations wander by 0.43 deg rms (over-height preset) in step with
     # its sideways position, which puts points 10 m away several cm off and skews the wide pairs;
     # grafted, the trajectory is within 0.065 deg rms (ATE 60 -> 12 mm; width -3.03 -> -1.03 %
-    # before the finer voxel), for ~19 s of SfM on 35 HD720 images. None = with motion stereo (far
+    # before the finer voxel), for ~25 s of SfM (one thread) on 35 HD720 images. None = with motion stereo (far
     # scenes) only; if SfM fails, VO's poses are kept (logged, counts["sfm_refine"]).
     refine_poses_sfm: bool | None = None
     # TSDF settings; voxel_m None = derived from the first keyframe's depth.
@@ -544,9 +544,6 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
         with sw.stage("poses"):
             if mode == "vo":
                 traj = vo.finish()
-                refine = c.refine_poses_sfm if c.refine_poses_sfm is not None else motion is not None
-                if refine and len(traj) >= c.min_frames:
-                    traj = _refine_with_sfm(traj, keyframes, partners, work, K, B, source.fps, counts)
             elif mode == "sfm":
                 from stereo_recon.sfm import sfm_poses
 
@@ -561,6 +558,11 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                 keyset = set(keyframes) | set(partners.values())
                 sel = [i for i, idx in enumerate(gt_traj.indices) if int(idx) in keyset]
                 traj = gt_traj.subset(np.asarray(sel, dtype=np.int64)) if sel else Trajectory([], [], np.zeros((0, 4, 4)))
+        refine = c.refine_poses_sfm if c.refine_poses_sfm is not None else motion is not None
+        if mode == "vo" and refine and len(traj) >= c.min_frames:
+            report("sfm", 0, None)
+            with sw.stage("refine_poses"):
+                traj = _refine_with_sfm(traj, keyframes, partners, work, K, B, source.fps, counts)
         if len(traj) < c.min_frames:
             raise StageError("poses", f"only {len(traj)} frames have a pose (tracking lost); at least {c.min_frames} "
                                       "are needed")
