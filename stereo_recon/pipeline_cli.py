@@ -176,11 +176,12 @@ def _cmd_bench(args) -> int:
     trucks = parse_truck_range(args.trucks)
     if args.study:
         trucks = [t for t in trucks if t <= 6] or [1, 2, 3, 4, 5, 6]  # the paper's six training trucks
+    overrides = _reconstruct_overrides(args)
     jobs = [Job(f"table2:{n}", bench_one, (f"table2:{n}", str(out / "scenes" / f"table2-{n}"), str(out / "runs" / f"table2-{n}"),
-                                          args.seed + n, args.frames, args.poses, _reconstruct_overrides(args))) for n in trucks]
+                                          args.seed + n, args.frames, args.poses, overrides)) for n in trucks]
     full = [] if (args.no_full_scale or args.study) else ["full-truck", "over-height"]
     jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, args.poses,
-                                _reconstruct_overrides(args))) for p in full]
+                                overrides)) for p in full]
 
     def progress(r):
         if r["ok"]:
