@@ -41,7 +41,7 @@ class FusionConfig:
     trunc_voxels: float = 8.0
     # Depth range integrated (m); farther depth is noisier (error grows with Z²) and costs blocks.
     depth_min_m: float = 0.3
-    depth_max_m: float = 20.0
+    depth_max_m: float = math.inf   # no fixed cap: reconstruct derives one from the rig and the scene
     # Voxels per block edge. 8 rather than Open3D's 16: the truncation shell around a surface fills
     # small blocks better, so fewer idle voxels are updated (measured on the synthetic HD720 orbit:
     # 0.56 vs 0.98 CPU s per frame, half the memory).
@@ -328,7 +328,8 @@ class TSDFFusion:
         # roof and ground 3.0 mm low before, 0.0 mm after).
         intr_lookup = o3c.Tensor(pixel_centre_intrinsics(K), dtype=o3c.float64)
         extr = o3c.Tensor(np.linalg.inv(T_wc), dtype=o3c.float64)  # Open3D extrinsic = camera-from-world
-        depth_max = float(self.config.depth_max_m)
+        # Open3D wants a finite limit; the masked depth holds nothing beyond the configured one.
+        depth_max = float(min(self.config.depth_max_m, 1.001 * float(z.max())))
         blocks = self._vbg.compute_unique_block_coordinates(depth_img, intr, extr, 1.0, depth_max,
                                                             float(self.config.trunc_voxels))
         n_blocks = int(blocks.shape[0])

@@ -22,6 +22,8 @@ descriptors and 3-D points (about 60 kB at 1000 features).
 
 from __future__ import annotations
 
+import math
+
 import logging
 from dataclasses import dataclass
 
@@ -48,9 +50,9 @@ class VOConfig:
     lk_window_px: int = 15
     lk_levels: int = 3
     lk_fb_max_px: float = 1.0
-    # Depth range trusted for lifting corners to 3-D (metres; ZED2 range).
+    # Depth range trusted for lifting corners to 3-D (metres).
     min_depth_m: float = 0.3
-    max_depth_m: float = 20.0
+    max_depth_m: float = math.inf   # no fixed cap: the sparse matcher stops at 1 px of disparity
     # A corner is lifted only where its inverse depth differs from the 5x5 mean by less than this
     # fraction (corners on depth edges get foreground/background mixes; planes pass).
     depth_edge_rel: float = 0.02
@@ -136,7 +138,7 @@ def _T_from_rt(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
 
 
 def sparse_stereo_depth(left_gray: np.ndarray, right_gray: np.ndarray, uv: np.ndarray, focal_px: float,
-                        baseline_m: float, min_depth_m: float = 0.3, max_depth_m: float = 20.0,
+                        baseline_m: float, min_depth_m: float = 0.3, max_depth_m: float = math.inf,
                         window_px: int = 9, min_ncc: float = 0.8, uniqueness: float = 0.05) -> np.ndarray:
     """Depth (M,) metres at left-image pixels uv (M,2) by row search in the rectified right image.
 

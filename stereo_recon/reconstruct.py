@@ -68,9 +68,14 @@ class ReconstructConfig:
     fps: float | None = None
     # Frames are already rectified (ZED SDK exports are): skip rectification. None = as the rig says.
     rectified: bool | None = None
-    # Depth range (m): sets the SGBM disparity range and what is fused. ZED2 range by default.
+    # Depth range (m): sets the SGBM disparity range and what is fused. depth_max_m None = derived from
+    # the rig: the depth of ``min_disparity_px`` of disparity (f*B/1 px: 63 m for a ZED2 at HD720). Why not a
+    # fixed 20 m: a full-scale truck flown at 2 x its length is 25-40 m away; a fixed cap left nothing of it
+    # (a random envelope draw at 21 m radius fused 126 points). The fused region is bounded by
+    # fusion_depth_max_rel instead, which follows the scene.
     depth_min_m: float = 0.3
-    depth_max_m: float = 20.0
+    depth_max_m: float | None = None
+    min_disparity_px: float = 1.0
     # Disparity preset ("fast", "balanced", "quality", "wls") and field overrides (disparity range is derived).
     disparity_preset: str = "balanced"
     disparity_overrides: dict = field(default_factory=dict)
@@ -150,8 +155,10 @@ class ReconstructConfig:
     def __post_init__(self) -> None:
         if not (self.poses in ("vo", "sfm") or self.poses.startswith("gt:")):
             raise ConfigError(f"--poses {self.poses!r}: expected vo, sfm or gt:PATH (a TUM trajectory)")
-        if not 0 < self.depth_min_m < self.depth_max_m:
+        if not 0 < self.depth_min_m or (self.depth_max_m is not None and not self.depth_min_m < self.depth_max_m):
             raise ConfigError(f"depth range [{self.depth_min_m}, {self.depth_max_m}] m: need 0 < min < max")
+        if not self.min_disparity_px > 0:
+            raise ConfigError(f"min_disparity_px={self.min_disparity_px}: must be > 0")
         if self.step < 1:
             raise ConfigError(f"--step {self.step}: must be >= 1")
         if self.voxel_m is not None and not self.voxel_m > 0:
@@ -328,6 +335,14 @@ class _Rectifier:
         return rectify_pair(left_bgr, right_gray, self.rect)
 
 
+def resolved_depth_max_m(config: ReconstructConfig, focal_px: float, baseline_m: float) -> float:
+    """Farthest depth matched and fused (m): ``config.depth_max_m``, or the depth of ``config.min_disparity_px``
+    of disparity for this rig (focal_px, px; baseline_m, m) when it is None."""
+    if config.depth_max_m is not None:
+        return float(config.depth_max_m)
+    return float(max(focal_px * baseline_m / config.min_disparity_px, 1.01 * config.depth_min_m))
+
+
 def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = ReconstructConfig(),
                 calib_path=None, progress: ProgressFn | None = None) -> dict:
     """Reconstruct a coloured point cloud and camera trajectory from a stereo video.
@@ -365,14 +380,15 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
         raise StageError("input", f"{source.path}: only {n_expected} frames selected (range/step); "
                                   f"at least {c.min_frames} are needed")
 
-    d_min, d_num = disparity_range_for_depth(f_px, B, c.depth_min_m, c.depth_max_m, c.max_num_disparities)
+    depth_max_m = resolved_depth_max_m(c, f_px, B)
+    d_min, d_num = disparity_range_for_depth(f_px, B, c.depth_min_m, depth_max_m, c.max_num_disparities)
     dcfg: DisparityConfig = preset(c.disparity_preset, min_disparity_px=d_min, num_disparities_px=d_num,
                                    fill_max_px=c.fill_max_px, **c.disparity_overrides)
     fcfg = replace(c.fusion, depth_min_m=max(c.fusion.depth_min_m, c.depth_min_m),
-                   depth_max_m=min(c.fusion.depth_max_m, c.depth_max_m),
+                   depth_max_m=min(c.fusion.depth_max_m, depth_max_m),
                    voxel_m=c.voxel_m if c.voxel_m is not None else c.fusion.voxel_m)
     log.info("rectified f=%.1f px, B=%.4f m; disparities %d..%d px for %.2f-%.1f m", f_px, B, d_min, d_min + d_num,
-             c.depth_min_m, c.depth_max_m)
+             c.depth_min_m, depth_max_m)
 
     mode = "gt" if c.poses.startswith("gt:") else c.poses
     gt_traj = None
@@ -416,7 +432,7 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
             nonlocal valid_sum
             with sw.stage("disparity"):
                 disp = disparity_map(left_g, right_g, dcfg)
-                d = depth_from_disparity(disp, f_px, B, c.depth_min_m, c.depth_max_m)
+                d = depth_from_disparity(disp, f_px, B, c.depth_min_m, depth_max_m)
             counts["frames_depth"] += 1
             valid_sum += float(np.isfinite(d).mean())
             return d

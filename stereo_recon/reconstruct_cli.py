@@ -28,7 +28,8 @@ def register(subparsers) -> None:
     p.add_argument("--fps", type=float, default=None, help="override the video's frame rate (timestamps)")
     p.add_argument("--voxel-m", type=float, default=None, help="TSDF voxel size in m (default: from the scene's depth)")
     p.add_argument("--depth-min-m", type=float, default=0.3, help="nearest depth used, m (default 0.3, ZED2)")
-    p.add_argument("--depth-max-m", type=float, default=20.0, help="farthest depth used, m (default 20, ZED2)")
+    p.add_argument("--depth-max-m", type=float, default=None,
+                   help="farthest depth used, m (default: where the rig's disparity falls to 1 px, 63 m for a ZED2 at HD720)")
     p.add_argument("--preset", default="balanced", choices=("fast", "balanced", "quality", "wls"),
                    help="disparity preset (default balanced)")
     p.add_argument("--all-frames", action="store_true",

@@ -12,6 +12,8 @@ registered camera (as the visual-odometry back-end does).
 
 from __future__ import annotations
 
+import math
+
 import logging
 import re
 import shutil
@@ -67,7 +69,7 @@ class SfMConfig:
     min_registered_fraction: float = 0.5
     # Depth samples outside this range are ignored when estimating the metric scale (metres).
     scale_depth_min_m: float = 0.3
-    scale_depth_max_m: float = 20.0
+    scale_depth_max_m: float = math.inf
     # At least this many depth/SfM correspondences are needed for a metric scale.
     scale_min_samples: int = 50
     # Threads for pycolmap (-1: all cores). One by default: COLMAP's multi-threaded matching and
