@@ -57,6 +57,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     """Handler: measure, write the outputs, print a short summary."""
     from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
+    from stereo_recon.progress import ProgressConfig, StageProgress
 
     cfg = load_config(args.config) if args.config else MeasureConfig()
     over = {field: getattr(args, flag) for flag, (field, _, _) in _OVERRIDES.items()}
@@ -65,8 +66,10 @@ def run(args) -> int:
             raise InputError(f"--{k.replace('_m', '').replace('_', '-')} must be positive, got {v}")
     cfg = cfg.with_overrides(**over)
     out = Path(args.out)
-    res = measure_cloud_file(args.cloud, out, cfg, up_hint=args.up, centre_hint=args.centre, regulation=args.regulation,
-                             vehicle_class=args.vehicle_class, scale=args.scale, plots=not args.no_plots, html=not args.no_plots)
+    with StageProgress(("measure", "plots", "report"), config=ProgressConfig(enabled=not getattr(args, "quiet", False))) as progress:
+        res = measure_cloud_file(args.cloud, out, cfg, up_hint=args.up, centre_hint=args.centre, regulation=args.regulation,
+                                 vehicle_class=args.vehicle_class, scale=args.scale, plots=not args.no_plots,
+                                 html=not args.no_plots, progress=progress)
     u = res["uncertainty_m"]
     v = res.get("verdict") or {}
     print(f"{args.cloud}: truck of {res['clusters']['n_truck_points']} points")

@@ -353,7 +353,7 @@ def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_r
 def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfig(), up_hint=None, centre_hint=None,
                        regulation: str = "cn-2016-62", vehicle_class: str | None = None, scale: float | None = None,
                        plots: bool = True, html: bool = True, k_sigma: float = 2.0,
-                       reconstruction_rel_sigma: dict | None = None) -> dict:
+                       reconstruction_rel_sigma: dict | None = None, progress=None) -> dict:
     """Measure the truck in a cloud file; write ``out_dir/measurement.json`` (+ PNG plots, report.html).
 
     Output is written into a staging folder and moved into ``out_dir`` only when everything
@@ -370,12 +370,15 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     ``timings_s``, ``frame`` (Eqs. 5-6 rotation/translation), ``axes``, ``input`` {path, sha256,
     n_points}, ``regulation``, ``versions``, ``plots``. Plots: width_density.png,
     length_density.png (paper Figs. 5-6), top_view.png, side_view.png; report.html.
+    progress: optional callback (stage, done, total or None): 'measure', 'plots', 'report'.
     """
     from measure.cloud_io import read_cloud
     from measure.limits import load_regulation, over_limit_verdict
     from stereo_recon.manifest import library_versions, sha256_file, staged_output_dir, to_jsonable, write_json_atomic
 
     cloud_path = Path(cloud_path)
+    report = progress or (lambda stage, done, total: None)
+    report("measure", 0, None)
     t0 = time.perf_counter()
     reg = load_regulation(regulation)   # fail early on a bad table, before any work
     pts = read_cloud(cloud_path, min_points=max(100, config.min_cluster_points))
@@ -401,6 +404,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     with staged_output_dir(out_dir) as tmp:
         images: dict[str, Path] = {}
         if plots:
+            report("plots", 0, None)
             t = time.perf_counter()
             images = write_plots(m, tmp)
             result["timings_s"]["plots"] = time.perf_counter() - t
@@ -412,6 +416,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
             except ImportError:
                 render_report_html = None
             if render_report_html is not None:
+                report("report", 0, None)
                 render_report_html(to_jsonable(result), images, tmp / "report.html")
     return to_jsonable(result)
 

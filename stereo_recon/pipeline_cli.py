@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from stereo_recon.errors import ConfigError, InputError
+from stereo_recon.progress import ProgressConfig, StageProgress
 
 
 def _add_job_options(p: argparse.ArgumentParser) -> None:
@@ -183,15 +184,23 @@ def _cmd_bench(args) -> int:
     jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, args.poses,
                                 overrides)) for p in full]
 
+    bar = StageProgress(("bench",), config=ProgressConfig(enabled=not getattr(args, "quiet", False)))
+    finished = 0
+
     def progress(r):
+        nonlocal finished
+        finished += 1
         if r["ok"]:
             e = r["error_pct"]
-            print(f"[{r['name']}] L {r['length_m']:.3f} W {r['width_m']:.3f} H {r['height_m']:.3f}  "
-                  f"err {e['length']:.2f}/{e['width']:.2f}/{e['height']:.2f}%  {r['time_s']:.1f}s", file=sys.stderr)
+            bar.write(f"[{r['name']}] L {r['length_m']:.3f} W {r['width_m']:.3f} H {r['height_m']:.3f}  "
+                      f"err {e['length']:.2f}/{e['width']:.2f}/{e['height']:.2f}%  {r['time_s']:.1f}s")
         else:
-            print(f"[{r['name']}] FAILED: {r['error']}", file=sys.stderr)
+            bar.write(f"[{r['name']}] FAILED: {r['error']}")
+        bar("bench", finished, len(jobs))
 
-    results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
+    with bar:
+        bar("bench", 0, len(jobs))
+        results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
     model = [r for r in results if r["name"].startswith("table2:")]
     fullscale = [r for r in results if not r["name"].startswith("table2:")]
     # A study runs only the six training trucks: its table must not overwrite a full Table 2 in the same folder.

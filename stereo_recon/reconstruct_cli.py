@@ -55,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
     from calib.io import parse_calib_arg
     from stereo_recon.errors import ConfigError
     from stereo_recon.motion_stereo import MotionStereoConfig
-    from stereo_recon.reconstruct import ReconstructConfig, TerminalProgress, reconstruct
+    from stereo_recon.progress import ProgressConfig, StageProgress
+    from stereo_recon.reconstruct import ReconstructConfig, reconstruct
     from stereo_recon.video import open_stereo_source, parse_frame_range
 
     if args.gpu:
@@ -74,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
         motion_stereo=MotionStereoConfig() if args.motion_stereo else None,
         refine_poses_sfm=REFINE_POSES_CHOICES[args.refine_poses],
     )
-    progress = TerminalProgress(enabled=None if not getattr(args, "quiet", False) else False)
+    progress = StageProgress(("depth", "poses", "sfm", "motion stereo", "fusion", "extract"),
+                             config=ProgressConfig(enabled=not getattr(args, "quiet", False)))
     calib_path = Path(args.calib) if Path(args.calib).exists() else None
     try:
         man = reconstruct(args.video, rig, args.out, config, calib_path=calib_path, progress=progress)
