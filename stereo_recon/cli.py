@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from stereo_recon import __version__
+from stereo_recon.cli_help import finish_help
 from stereo_recon.errors import StereoReconError
 from stereo_recon.progress import abandon_open, quiet_native_libraries, quiet_open3d
 
@@ -45,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
         mod.register(sub)
     for sp in sub.choices.values():
         _add_verbosity(sp, top=False)
+    finish_help(parser, sub)
     return parser
 
 
