@@ -81,6 +81,7 @@ class RunConfig:
     # measurement's own uncertainty before the verdict (None or zeros: the cloud is taken as exact).
     reconstruction_rel_sigma: dict | None = field(default_factory=lambda: dict(RECONSTRUCTION_REL_SIGMA))
     quiet: bool = False                  # no progress line on the terminal
+    case: dict | None = None             # {site, operator, case_id} for the report (free text)
 
 
 def find_sample() -> tuple[Path, Path]:
@@ -159,7 +160,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
         result = measure_cloud_file(
             paths.cloud, paths.root, mcfg, up_hint=up, centre_hint=centre,
             regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
-            reconstruction_rel_sigma=config.reconstruction_rel_sigma, progress=progress,
+            reconstruction_rel_sigma=config.reconstruction_rel_sigma, progress=progress, case=config.case,
         )
     except StereoReconError as err:
         if isinstance(err, StageError):

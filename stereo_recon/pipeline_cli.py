@@ -8,6 +8,7 @@ import math
 import sys
 from pathlib import Path
 
+from measure.cli import add_case_options, case_fields
 from stereo_recon.errors import ConfigError, InputError
 from stereo_recon.progress import ProgressConfig, StageProgress
 
@@ -28,6 +29,7 @@ def _add_job_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="balanced", choices=("fast", "balanced", "quality", "wls"),
                    help="disparity (SGBM) preset")
     p.add_argument("--mesh", action="store_true", help="also write mesh.ply (marching cubes of the TSDF volume)")
+    add_case_options(p)
     p.add_argument("--reconstruction-sigma-pct", default=None, metavar="L,W,H",
                    help="relative standard error of the reconstruction per dimension (%%), added to the measurement's "
                         "uncertainty before the verdict (default: the bench's 0.32,1.44,0.51; 0,0,0 = none)")
@@ -90,7 +92,7 @@ def _job_config(args, resume: bool):
     return RunConfig(poses=args.poses, regulation=args.regulation, vehicle_class=args.vehicle_class, scale=args.scale,
                      resume=resume, rectified=args.rectified, measure_config=args.config,
                      reconstruct_overrides=_reconstruct_overrides(args),
-                     quiet=bool(getattr(args, "quiet", False)), **extra)
+                     quiet=bool(getattr(args, "quiet", False)), case=case_fields(args), **extra)
 
 
 def _parse_sigma_pct(text: str) -> dict:
@@ -146,6 +148,10 @@ def _print_summary(s: dict) -> None:
     print(f"length {s['length_m']:.3f} m ± {u.get('length', float('nan')):.3f}   "
           f"width {s['width_m']:.3f} m ± {u.get('width', float('nan')):.3f}   "
           f"height {s['height_m']:.3f} m ± {u.get('height', float('nan')):.3f}")
+    dims = v.get("dimensions") if isinstance(v, dict) and v.get("scale") else None
+    if dims:  # the verdict is about the real size: show it, not only the model's
+        print(f"real size (x{v['scale']:g}): " + "   ".join(
+            f"{d} {(dims.get(d) or {}).get('value_m', float('nan')):.3f} m" for d in ("length", "width", "height")))
     if isinstance(v, dict):
         reg = v.get("regulation", "?")
         reg = reg.get("name", "?") if isinstance(reg, dict) else reg

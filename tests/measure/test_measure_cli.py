@@ -164,3 +164,17 @@ def test_run_parses_the_reconstruction_sigma_option():
     for bad in ("1,2", "a,b,c", "1,-1,1", "1,nan,1"):
         with pytest.raises(ConfigError, match="reconstruction-sigma-pct"):
             _parse_sigma_pct(bad)
+
+
+def test_case_fields_and_real_size_with_scale(truck_ply, tmp_path, capsys):
+    path, _ = truck_ply
+    out = tmp_path / "case"
+    assert main(["measure", str(path), "--out", str(out), "--scale", "8", "--case-id", "2026-0117", "--site", "G4 收费站",
+                 "--operator", "Li Wei"]) == 0
+    m = json.loads((out / "measurement.json").read_text())
+    assert m["case"] == {"site": "G4 收费站", "operator": "Li Wei", "case_id": "2026-0117"}
+    text = capsys.readouterr().out
+    real = m["verdict"]["dimensions"]["length"]["value_m"]
+    assert abs(real - 8 * m["length_m"]) < 1e-9 and f"{real:.3f} m" in text  # the size the verdict is about
+    html = (out / "report.html").read_text(encoding="utf-8")
+    assert "2026-0117" in html and "G4 收费站" in html
