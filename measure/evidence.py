@@ -74,22 +74,6 @@ def box_corners_world(measurement: Mapping[str, Any]) -> np.ndarray | None:
     return (ground - t) @ R  # R is orthonormal: p = R^T (g - t)
 
 
-def _read_poses(path: Path) -> list[tuple[float, np.ndarray]]:
-    """(timestamp_s, 4x4 world-from-camera) from a TUM file."""
-    from scipy.spatial.transform import Rotation
-
-    rows = []
-    for line in path.read_text().splitlines():
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
-        v = [float(x) for x in line.split()[:8]]
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(v[4:8]).as_matrix()
-        T[:3, 3] = v[1:4]
-        rows.append((v[0], T))
-    return rows
-
-
 def _project(corners_w: np.ndarray, T_wc: np.ndarray, K: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixels (8, 2) of world points in a camera and their depths (8,), with OpenCV's lens model."""
     import cv2
@@ -128,6 +112,8 @@ def keyframe_with_box(run_dir: str | os.PathLike, measurement: Mapping[str, Any]
     """
     import cv2
 
+    from stereo_recon.errors import StereoReconError
+    from stereo_recon.trajectory import read_tum
     from stereo_recon.video import open_stereo_source
 
     run_dir = Path(run_dir)
@@ -139,10 +125,11 @@ def keyframe_with_box(run_dir: str | os.PathLike, measurement: Mapping[str, Any]
         size = tuple(int(v) for v in rig["image_size"])
         fps = float(run["source"]["fps"])
         video = Path(run["source"]["path"])
-        poses = _read_poses(run_dir / "poses.txt")
-    except (OSError, KeyError, TypeError, ValueError, json.JSONDecodeError) as err:
+        traj = read_tum(run_dir / "poses.txt", fps=fps)
+    except (OSError, KeyError, TypeError, ValueError, json.JSONDecodeError, StereoReconError) as err:
         log.info("keyframe: no run folder to take a frame from (%s)", err)
         return None
+    poses = list(zip(traj.timestamps_s, traj.T_wc))
     if corners is None or not poses or not video.exists():
         return None
     i = best_view(corners, poses, K, D, size)
@@ -150,7 +137,7 @@ def keyframe_with_box(run_dir: str | os.PathLike, measurement: Mapping[str, Any]
         log.info("keyframe: no frame shows the whole box")
         return None
     t, T = poses[i]
-    index = int(round(t * fps))
+    index = int(traj.indices[i])
     try:
         frame = next(iter(open_stereo_source(video, (index, index + 1), 1)))
     except Exception as err:  # the video moved or cannot be decoded there: the report goes without the picture

@@ -371,8 +371,9 @@ class TSDFFusion:
         return self._vbg.extract_triangle_mesh(weight_threshold=float(wt)).to_legacy()
 
 
-def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None = None) -> Path:
-    """Write a binary PLY point cloud (points (N,3) m; colours (N,3) RGB in [0, 1] or uint8)."""
+def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None = None,
+                    normals: np.ndarray | None = None) -> Path:
+    """Write a binary PLY point cloud (points (N,3) m; colours (N,3) RGB in [0, 1] or uint8; unit normals (N,3))."""
     import open3d as o3d
 
     path = Path(path)
@@ -381,6 +382,8 @@ def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None 
         c = np.asarray(colors_rgb)
         c = c / 255.0 if c.dtype == np.uint8 else c
         pcd.colors = o3d.utility.Vector3dVector(np.asarray(c, dtype=np.float64))
+    if normals is not None and len(normals):
+        pcd.normals = o3d.utility.Vector3dVector(np.asarray(normals, dtype=np.float64))
     if not o3d.io.write_point_cloud(str(path), pcd, write_ascii=False):
         raise OSError(f"{path}: could not write point cloud")
     return path

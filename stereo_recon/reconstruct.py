@@ -693,7 +693,9 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
             pts, rgb = fusion.extract_cloud(min_weight=min_w)
             if len(pts) == 0:
                 raise StageError("fusion", "the fused volume has no surface points (no overlapping valid depth)")
-            write_cloud_ply(stage_dir / "cloud.ply", pts, rgb)
+            from stereo_recon.normals import oriented_normals  # facing the nearest fused view's camera
+
+            write_cloud_ply(stage_dir / "cloud.ply", pts, rgb, oriented_normals(pts, centres, 4.0 * fusion.voxel_m))
             if c.mesh:
                 import open3d as o3d
 
@@ -724,6 +726,7 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                           "tracking_gaps": traj.stats.get("gaps", traj.stats.get("tracking_gaps", [])),
                           "path_length_m": traj.path_length_m()},
                 "fusion": asdict(fusion.stats),
+                "fused_views": [int(i) for i in posed],  # frame indices of the fused views (COLMAP export)
                 "voxel_m": fusion.voxel_m,
                 "up": up,
                 "outputs": sorted(["cloud.ply", "poses.txt", "run.json"] + (["mesh.ply"] if c.mesh else [])),

@@ -38,6 +38,9 @@ def register(subparsers) -> None:
                    help="frames are already rectified (ZED SDK exports): skip rectification")
     p.add_argument("--gpu", action="store_true", help="rectify on a CUDA GPU with torch/kornia (pip install .[gpu])")
     p.add_argument("--keep-work", action="store_true", help="keep keyframe images/depth maps in OUT/work")
+    p.add_argument("--export-colmap", default=None, metavar="DIR",
+                   help="also write the fused views as a COLMAP model: DIR/sparse/0 (cameras, images with poses) and "
+                        "DIR/images (their left frames)")
     p.add_argument("--motion-stereo", action="store_true",
                    help="match each fused view with a later frame ~0.11 x the depth away (a wide baseline) and fuse "
                         "that depth, also on near scenes (far scenes get it anyway); vo or gt poses only")
@@ -82,6 +85,12 @@ def run(args: argparse.Namespace) -> int:
         man = reconstruct(args.video, rig, args.out, config, calib_path=calib_path, progress=progress)
     finally:
         progress.close()
+    if args.export_colmap:
+        from stereo_recon.colmap_export import export_colmap
+
+        model = export_colmap(args.out, args.export_colmap)
+        if not getattr(args, "quiet", False):
+            print(f"  COLMAP model: {model} (images in {Path(args.export_colmap) / 'images'})")
     if not getattr(args, "quiet", False):
         cnt, poses = man["counts"], man["poses"]
         gaps = poses.get("tracking_gaps") or []

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from measure.schema import read_measurement
 from stereo_recon.cli import build_parser, main
 from stereo_recon.cli_help import HelpFormatter
 
@@ -86,6 +87,7 @@ def test_log_txt_in_the_output_folder_whatever_the_verbosity(tmp_path, capsys):
     write_cloud(tmp_path / "truck.ply", pts)
     out = tmp_path / "m"
     assert main(["measure", str(tmp_path / "truck.ply"), "--out", str(out), "--no-plots", "-q"]) == 0
+    read_measurement(out)
     lines = (out / "log.txt").read_text().splitlines()
     # timestamped, and at debug level although the terminal was -q
     assert all(re.match(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3} [A-Z]+ ", ln) for ln in lines if ln and not ln.startswith(" "))
