@@ -63,6 +63,7 @@ table { border-collapse:collapse; width:100%; }
 th, td { border:1px solid var(--line); padding:6px 10px; text-align:left; vertical-align:top; }
 th { background:#eceff1; }
 table.dims td.num { font-size:1.2em; font-weight:600; white-space:nowrap; }
+table.dims td.small { overflow-wrap:anywhere; }  /* rule names are long single words: wrap, stay inside the page */
 td.verdict { font-weight:700; text-transform:uppercase; white-space:nowrap; }
 td.v-over { color:#fff; background:var(--over); } td.v-within { color:#fff; background:var(--within); }
 td.v-undecided { color:#fff; background:var(--undecided); } td.v-na { color:#fff; background:var(--na); }

@@ -119,7 +119,7 @@ class StageProgress:
     # -- internals ---------------------------------------------------------------------------
     def _desc(self, stage: str) -> str:
         label = STAGE_LABELS.get(stage, stage)
-        if stage in self.stages:
+        if stage in self.stages and len(self.stages) > 1:
             return f"[{self.stages.index(stage) + 1}/{len(self.stages)}] {label}"
         return label
 

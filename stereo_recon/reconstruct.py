@@ -690,12 +690,10 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
         report("extract", 0, None)
         with sw.stage("extract"):
             min_w = min(fcfg.min_weight, max(1.0, fused / 3.0))  # a handful of views must still give points
-            pts, rgb = fusion.extract_cloud(min_weight=min_w)
+            pts, rgb, normals = fusion.extract_cloud(min_weight=min_w, normals=True)
             if len(pts) == 0:
                 raise StageError("fusion", "the fused volume has no surface points (no overlapping valid depth)")
-            from stereo_recon.normals import oriented_normals  # facing the nearest fused view's camera
-
-            write_cloud_ply(stage_dir / "cloud.ply", pts, rgb, oriented_normals(pts, centres, 4.0 * fusion.voxel_m))
+            write_cloud_ply(stage_dir / "cloud.ply", pts, rgb, normals)
             if c.mesh:
                 import open3d as o3d
 
