@@ -62,7 +62,7 @@ h1 { font-size:1.6em; margin:0 0 4px 0; } h2 { font-size:1.2em; margin:22px 0 8p
 table { border-collapse:collapse; width:100%; }
 th, td { border:1px solid var(--line); padding:6px 10px; text-align:left; vertical-align:top; }
 th { background:#eceff1; }
-table.dims td.num { font-size:1.2em; font-weight:600; white-space:nowrap; }
+table.dims td.num { font-size:1.2em; font-weight:600; }  /* "value m ± u m" may wrap at the ±, never inside a number */
 table.dims td.small { overflow-wrap:anywhere; }  /* rule names are long single words: wrap, stay inside the page */
 td.verdict { font-weight:700; text-transform:uppercase; white-space:nowrap; }
 td.v-over { color:#fff; background:var(--over); } td.v-within { color:#fff; background:var(--within); }
@@ -100,8 +100,9 @@ footer { margin-top:30px; font-size:0.8em; color:#78909c; }
   table.dims, .banner, .evidence { page-break-inside:avoid; break-inside:avoid; }
   .evidence figure img { max-height:62mm; width:auto; }
   .newpage { page-break-before:always; break-before:page; }
-  .plots figure { flex:1 1 45%; } .plots figure img { max-height:100mm; width:auto; }
-  details { border:none; padding:0; }
+  .plots figure { flex:1 1 45%; } .plots figure img { max-height:60mm; width:auto; }
+  table.dims td.num { font-size:1.05em; white-space:nowrap; }
+  details { border:none; padding:0; margin:4px 0; } footer { margin-top:10px; break-before:avoid; page-break-before:avoid; }
 }
 """
 
@@ -413,14 +414,15 @@ def _regulation_block(verdict: Mapping, reg: Mapping) -> str:
 
 
 def _provenance_block(measurement: Mapping, run_info: Mapping, sha_rows: list) -> str:
-    out = ["<h2>Provenance</h2>"]
+    # The recording's files and checksums are on page 1; every input the stages recorded is listed here.
+    out = ["<h2>Appendix</h2><p class='small'>Collapsed here and in print; open a section on screen, or read measurement.json.</p>"]
     if sha_rows:
-        out.append("<table><tr><th>Input</th><th>File</th><th>SHA-256</th></tr>"
+        out.append("<details><summary>Provenance: every input with its SHA-256</summary><table><tr><th>Input</th><th>File</th>"
+                   "<th>SHA-256</th></tr>"
                    + "".join(f"<tr><td>{_e(a)}</td><td class='mono'>{_e(b)}</td><td class='mono'>{_e(c)}</td></tr>" for a, b, c in sha_rows)
-                   + "</table>")
+                   + "</table></details>")
     else:
         out.append("<p class='small'>No input checksum recorded.</p>")
-    out.append("<h2>Appendix</h2><p class='small'>Collapsed here and in print; open a section on screen, or read measurement.json.</p>")
     params = measurement.get("parameters") or measurement.get("config")
     if params:
         out.append(f"<details><summary>Parameters used</summary>{_kv_table(params) if isinstance(params, Mapping) else '<pre>' + _e(params) + '</pre>'}</details>")
