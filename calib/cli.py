@@ -35,7 +35,10 @@ def register(subparsers) -> None:
         help="check a calibration against a video (row alignment of matched features)",
         description="Match features between the eyes of a few frames and compare their row offsets raw and after "
                     "rectification with --calib: says whether the calibration fits, whether the video is already "
-                    "rectified (do not rectify again) or raw. Exit status 0 when it fits, 1 otherwise.")
+                    "rectified (do not rectify again) or raw. Exit status (as diff and cmp): 0 when the calibration fits, "
+                    "1 when it does not (a mismatch, including a calibration for another aspect ratio; already rectified; "
+                    "swapped eyes; too few matches to tell), 2 when the check cannot run (unreadable video or calibration "
+                    "file, bad option).")
     c.add_argument("input", help="side-by-side video or image, or folder of left/right image pairs")
     c.add_argument("--calib", required=True,
                    help="ZED .conf, rig YAML/XML, or fx,fy,cx,cy,baseline_m[,width,height] for rectified frames")
@@ -187,7 +190,17 @@ def run_calib_check(args: argparse.Namespace) -> int:
     pairs, size = _sample_pairs(src, args.frames)
     if not pairs:
         raise InputError(f"{src}: no frames could be read")
-    rig = parse_calib_arg(args.calib, image_size=size)
+    try:
+        rig = parse_calib_arg(args.calib, image_size=size)
+    except InputError as err:
+        if "aspect ratio" not in str(err):
+            raise  # unreadable or broken calibration: the check cannot run (2)
+        # A calibration for frames of another shape is a finding about the pair (it does not fit: 1), not a broken file.
+        print(f"calibration_mismatch: {' '.join(str(err).split())}")
+        if args.out:
+            write_json_atomic(args.out, {"verdict": "calibration_mismatch", "message": str(err), "calib": args.calib,
+                                         "input": str(src), "image_size": list(size)})
+        return 1
     result = check_pairs(pairs, rig)
     if spec is not None:
         views: list[PairView] = []

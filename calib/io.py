@@ -119,6 +119,10 @@ def save_rig(rig: StereoRig, path: str | os.PathLike) -> Path:
         "R": rig.R, "T": rig.T.reshape(3, 1),
         "baseline_m": rig.baseline_m,  # informational (= |T|); ignored on reading
     }
+    # The rectification this project applies (alpha 0, zero disparity at infinity), under OpenCV's stereo-sample
+    # names, so other tools can rectify and triangulate without recomputing it; informational, ignored on reading.
+    rect = rig.rectification(0.0)
+    entries.update({"R1": rect.R1, "R2": rect.R2, "P1": rect.P1, "P2": rect.P2, "Q": rect.Q})
     if rig.metadata:
         entries["metadata"] = dict(rig.metadata)
     return _write_filestorage(path, entries)

@@ -22,6 +22,19 @@ _OVERRIDES = {
 }
 
 
+def add_case_options(p: argparse.ArgumentParser) -> None:
+    """--site, --operator, --case-id: free text shown on the report's first page and kept in measurement.json."""
+    p.add_argument("--site", default=None, help="where the truck was measured, e.g. \"G4 toll gate 12\" (shown in the report)")
+    p.add_argument("--operator", default=None, help="who flew/measured (shown in the report)")
+    p.add_argument("--case-id", default=None, help="the agency's case or ticket number (shown in the report)")
+
+
+def case_fields(args) -> dict | None:
+    """{site, operator, case_id} from the options above, or None when none was given."""
+    case = {k: getattr(args, k, None) for k in ("site", "operator", "case_id")}
+    return {k: v for k, v in case.items() if v} or None
+
+
 def _vec3(text: str) -> tuple[float, float, float]:
     try:
         parts = [float(v) for v in text.replace(" ", "").split(",")]
@@ -49,6 +62,7 @@ def register(subparsers) -> None:
     p.add_argument("--up", type=_vec3, default=None, metavar="X,Y,Z", help="approximate up direction in the cloud's frame (default: estimated); write --up=X,Y,Z when X is negative")
     p.add_argument("--centre", "--center", dest="centre", type=_vec3, default=None, metavar="X,Y,Z", help="a point near the truck (e.g. the orbit centre), to choose among several vehicles; --centre=X,Y,Z when X is negative")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots and the HTML report")
+    add_case_options(p)
     for flag, (_, typ, help_) in _OVERRIDES.items():
         p.add_argument(f"--{flag.replace('_', '-')}", dest=flag, type=typ, default=None, help=help_)
     p.set_defaults(func=run)
@@ -57,6 +71,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     """Handler: measure, write the outputs, print a short summary."""
     from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
+    from stereo_recon.progress import ProgressConfig, StageProgress
 
     cfg = load_config(args.config) if args.config else MeasureConfig()
     over = {field: getattr(args, flag) for flag, (field, _, _) in _OVERRIDES.items()}
@@ -65,14 +80,20 @@ def run(args) -> int:
             raise InputError(f"--{k.replace('_m', '').replace('_', '-')} must be positive, got {v}")
     cfg = cfg.with_overrides(**over)
     out = Path(args.out)
-    res = measure_cloud_file(args.cloud, out, cfg, up_hint=args.up, centre_hint=args.centre, regulation=args.regulation,
-                             vehicle_class=args.vehicle_class, scale=args.scale, plots=not args.no_plots, html=not args.no_plots)
+    with StageProgress(("measure", "plots", "report"), config=ProgressConfig(enabled=not getattr(args, "quiet", False))) as progress:
+        res = measure_cloud_file(args.cloud, out, cfg, up_hint=args.up, centre_hint=args.centre, regulation=args.regulation,
+                                 vehicle_class=args.vehicle_class, scale=args.scale, plots=not args.no_plots,
+                                 html=not args.no_plots, progress=progress, case=case_fields(args))
     u = res["uncertainty_m"]
     v = res.get("verdict") or {}
     print(f"{args.cloud}: truck of {res['clusters']['n_truck_points']} points")
     for d in ("length", "width", "height"):
         vd = (v.get("dimensions") or {}).get(d) or {}
-        print(f"  {d:<6} {res[d + '_m']:8.3f} m ± {u[d]:.3f} m  [{res['rules'][d]}]  {vd.get('verdict', '')}")
+        line = f"  {d:<6} {res[d + '_m']:8.3f} m ± {u[d]:.3f} m"
+        if args.scale is not None and vd.get("value_m") is not None:
+            # the verdict is about the real size: print that next to it, not the model's
+            line += f"  = {vd['value_m']:.3f} m ± {vd.get('uncertainty_m') or 0:.3f} m real (x{args.scale:g})"
+        print(f"{line}  [{res['rules'][d]}]  {vd.get('verdict', '')}")
     print(f"  verdict: {v.get('overall')}{' — ' + v['reason'] if v.get('reason') else ''}")
     print(f"  written: {out / 'measurement.json'}")
     return 0

@@ -22,6 +22,9 @@ from stereo_recon.errors import ConfigError, InputError, StageError
 
 log = logging.getLogger(__name__)
 
+# Version of measurement.json's layout (measure/schemas/measurement.schema.json).
+SCHEMA_VERSION = "1.0"
+
 
 @dataclass(frozen=True)
 class MeasureConfig:
@@ -353,7 +356,7 @@ def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_r
 def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfig(), up_hint=None, centre_hint=None,
                        regulation: str = "cn-2016-62", vehicle_class: str | None = None, scale: float | None = None,
                        plots: bool = True, html: bool = True, k_sigma: float = 2.0,
-                       reconstruction_rel_sigma: dict | None = None) -> dict:
+                       reconstruction_rel_sigma: dict | None = None, progress=None, case: dict | None = None) -> dict:
     """Measure the truck in a cloud file; write ``out_dir/measurement.json`` (+ PNG plots, report.html).
 
     Output is written into a staging folder and moved into ``out_dir`` only when everything
@@ -370,12 +373,19 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     ``timings_s``, ``frame`` (Eqs. 5-6 rotation/translation), ``axes``, ``input`` {path, sha256,
     n_points}, ``regulation``, ``versions``, ``plots``. Plots: width_density.png,
     length_density.png (paper Figs. 5-6), top_view.png, side_view.png; report.html.
+    progress: optional callback (stage, done, total or None): 'measure', 'plots', 'report'.
+    case: optional {site, operator, case_id} shown in the report (``case`` in measurement.json).
+    When the cloud's folder is a run folder (run.json, poses.txt), ``recording`` names the source video and
+    calibration with their sha256 and the recording time, and a keyframe with the measured box joins the plots.
+    The record validates against ``measure/schemas/measurement.schema.json`` (``schema_version``).
     """
     from measure.cloud_io import read_cloud
     from measure.limits import load_regulation, over_limit_verdict
     from stereo_recon.manifest import library_versions, sha256_file, staged_output_dir, to_jsonable, write_json_atomic
 
     cloud_path = Path(cloud_path)
+    report = progress or (lambda stage, done, total: None)
+    report("measure", 0, None)
     t0 = time.perf_counter()
     reg = load_regulation(regulation)   # fail early on a bad table, before any work
     pts = read_cloud(cloud_path, min_points=max(100, config.min_cluster_points))
@@ -386,6 +396,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma)
     verdict = over_limit_verdict(values, uncertainty, reg, vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
     result = {
+        "schema_version": SCHEMA_VERSION,
         "length_m": m.length_m, "width_m": m.width_m, "height_m": m.height_m, "uncertainty_m": uncertainty,
         **({"uncertainty_parts": parts} if parts else {}),
         "verdict": verdict,
@@ -398,11 +409,25 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
         "stage": "measure",
     }
     result["timings_s"] = dict(result["timings_s"], read=t_read)
+    case = {k: str(v) for k, v in (case or {}).items() if v}
+    if case:
+        result["case"] = case
+    run_info = _run_info(cloud_path.parent)
+    if run_info:
+        result["recording"] = _recording(run_info)
     with staged_output_dir(out_dir) as tmp:
         images: dict[str, Path] = {}
         if plots:
+            report("plots", 0, None)
             t = time.perf_counter()
-            images = write_plots(m, tmp)
+            images = write_plots(m, tmp, scale=scale)
+            if run_info:
+                from measure.evidence import keyframe_with_box
+
+                kf = keyframe_with_box(cloud_path.parent, to_jsonable(result), tmp / "keyframe.jpg")
+                if kf is not None:
+                    images["keyframe"] = Path(kf["path"])
+                    result["recording"]["keyframe"] = {"frame": kf["frame"], "time_s": kf["time_s"]}
             result["timings_s"]["plots"] = time.perf_counter() - t
         result["plots"] = {k: v.name for k, v in images.items()}
         write_json_atomic(tmp / "measurement.json", result)
@@ -412,29 +437,60 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
             except ImportError:
                 render_report_html = None
             if render_report_html is not None:
-                render_report_html(to_jsonable(result), images, tmp / "report.html")
+                report("report", 0, None)
+                render_report_html(to_jsonable(result), images, tmp / "report.html", run_info=run_info)
     return to_jsonable(result)
 
 
-def write_plots(m: Measurement, folder: Path) -> dict[str, Path]:
-    """PNG plots of a measurement (densities like the paper's Figs. 5-6, top and side views)."""
+def _run_info(folder: Path) -> dict | None:
+    """The reconstruction manifest (run.json) of the folder the cloud came from, or None."""
+    import json
+
+    try:
+        info = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return info if isinstance(info, dict) else None
+
+
+def _recording(run_info: dict) -> dict:
+    """Source video and calibration (path, sha256, from run.json) and the recording time from the container."""
+    from measure.evidence import recording_time
+
+    inputs = run_info.get("inputs") or {}
+    rec = {k: inputs[k] for k in ("video", "calib") if isinstance(inputs.get(k), dict)}
+    video = (inputs.get("video") or {}).get("path")
+    if video:
+        rec.update(recording_time(video))
+    return rec
+
+
+def write_plots(m: Measurement, folder: Path, scale: float | None = None) -> dict[str, Path]:
+    """PNG plots of a measurement (densities like the paper's Figs. 5-6, top and side views).
+
+    scale: model-to-real factor; when given every length is drawn at real size (the verdict's units).
+    """
     from measure import plots
 
+    k = float(scale) if scale else 1.0
+    units = f"m, real size = model x {k:g}" if scale else "m"
     d = m.details
     out: dict[str, Path] = {}
     xy = m.truck_xyz_ground[:, :2] - d["origin_xy_m"]
     u1, u2 = d["axes_xy"]["length"], d["axes_xy"]["width"]
-    a, b = xy @ u1, xy @ u2
+    a, b = k * (xy @ u1), k * (xy @ u2)
     for name, samples in (("width", b), ("length", a)):
         dens = d["densities"][name]
-        e0, e1 = d["edges_m"][name]
+        e0, e1 = (k * e for e in d["edges_m"][name])
         out[f"{name}_density"] = plots.plot_density(
-            folder / f"{name}_density.png", name, dens["grid_m"], dens["density"], samples_m=samples,
-            peaks_m=(e0, e1), markers_m={"start": e0, "end": e1},
-            title=f"{name}: {getattr(m, name + '_m'):.3f} m ({m.rules[name]}, h = {m.bandwidths_m[name]:.3g} m)")
+            folder / f"{name}_density.png", name, k * np.asarray(dens["grid_m"]), np.asarray(dens["density"]) / k,
+            samples_m=samples, peaks_m=(e0, e1), markers_m={"start": e0, "end": e1}, units=units,
+            title=f"{name}: {k * getattr(m, name + '_m'):.3f} m ({m.rules[name]}, h = {k * m.bandwidths_m[name]:.3g} m)")
     # Top and side views in the truck's own axes (length along x).
-    rect = np.array([[s, t] for s, t in ((d["edges_m"]["length"][0], d["edges_m"]["width"][0]), (d["edges_m"]["length"][1], d["edges_m"]["width"][0]),
-                                          (d["edges_m"]["length"][1], d["edges_m"]["width"][1]), (d["edges_m"]["length"][0], d["edges_m"]["width"][1]))])
-    out["top_view"] = plots.plot_top_view(folder / "top_view.png", np.stack([a, b], axis=1), rect, m.length_m, m.width_m)
-    out["side_view"] = plots.plot_side_view(folder / "side_view.png", np.stack([a, m.truck_xyz_ground[:, 2]], axis=1), m.height_m)
+    (l0, l1), (w0, w1) = ((k * e for e in d["edges_m"][n]) for n in ("length", "width"))
+    rect = np.array([[l0, w0], [l1, w0], [l1, w1], [l0, w1]])
+    out["top_view"] = plots.plot_top_view(folder / "top_view.png", np.stack([a, b], axis=1), rect, k * m.length_m,
+                                          k * m.width_m, units=units)
+    out["side_view"] = plots.plot_side_view(folder / "side_view.png", np.stack([a, k * m.truck_xyz_ground[:, 2]], axis=1),
+                                            k * m.height_m, units=units)
     return out

@@ -96,6 +96,7 @@ def plot_density(
     peaks_m: Sequence[float] = (),
     markers_m: Mapping[str, float] | None = None,
     title: str = "",
+    units: str = "m",
 ) -> Path:
     """Density of point positions along one truck axis, like the paper's Figs. 5-6.
 
@@ -107,6 +108,7 @@ def plot_density(
     peaks_m: positions of the detected peaks (red dashed lines, values in the legend);
         with exactly two peaks their distance is drawn as a double arrow.
     markers_m: other labelled positions, e.g. {"front extreme": 7.93}.
+    units: how the axis labels name the unit, e.g. "m, real size = model x 16" for a scaled model.
     """
     grid = np.asarray(grid_m, dtype=float).ravel()
     dens = np.asarray(density, dtype=float).ravel()
@@ -152,7 +154,7 @@ def plot_density(
         colour = _MARKER_COLOURS[i % len(_MARKER_COLOURS)]
         ax.axvline(float(pos), color=colour, ls=":", lw=1.5, label=f"{label} ({float(pos):.3f} m)")
     ax.set_ylim(0, top)
-    ax.set_xlabel(f"position along the {axis_name} axis (m)")
+    ax.set_xlabel(f"position along the {axis_name} axis ({units})")
     ax.set_ylabel("density (1/m)")
     ax.set_title(title or f"{axis_name} density")
     ax.grid(alpha=0.3)
@@ -177,7 +179,8 @@ def _annotate_edge(ax, p: np.ndarray, q: np.ndarray, centre: np.ndarray, text: s
             color=_BOX_COLOUR, bbox=dict(facecolor="white", edgecolor="none", alpha=0.85, pad=1.0))
 
 
-def plot_top_view(path: str | os.PathLike, xy_m, rect_corners_xy_m, length_m: float, width_m: float) -> Path:
+def plot_top_view(path: str | os.PathLike, xy_m, rect_corners_xy_m, length_m: float, width_m: float,
+                  units: str = "m") -> Path:
     """Top view: truck points projected on the ground, the fitted rectangle, length and width.
 
     xy_m: (N, 2) ground-plane coordinates (m) of the truck's points.
@@ -208,15 +211,15 @@ def plot_top_view(path: str | os.PathLike, xy_m, rect_corners_xy_m, length_m: fl
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set_xlabel(f"x ({units})")
+    ax.set_ylabel(f"y ({units})")
     ax.set_title("top view (ground plane)")
     ax.grid(alpha=0.3)
     fig.legend(loc="outside right upper", fontsize=8, markerscale=8, framealpha=0.9)
     return _save_atomic(fig, path)
 
 
-def plot_side_view(path: str | os.PathLike, xz_m, height_m: float) -> Path:
+def plot_side_view(path: str | os.PathLike, xz_m, height_m: float, units: str = "m") -> Path:
     """Side view: truck points (along-length coordinate vs height above ground), ground line, height.
 
     xz_m: (N, 2) coordinates (m): position along the truck's length axis and height above
@@ -244,8 +247,8 @@ def plot_side_view(path: str | os.PathLike, xz_m, height_m: float) -> Path:
     ax.set_xlim(x0 - pad, x1 + 2.2 * pad)
     ax.set_ylim(-pad, float(height_m) + pad * 1.5)
     ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("along the length axis (m)")
-    ax.set_ylabel("height above ground (m)")
+    ax.set_xlabel(f"along the length axis ({units})")
+    ax.set_ylabel(f"height above ground ({units})")
     ax.set_title("side view")
     ax.grid(alpha=0.3)
     fig.legend(loc="outside right upper", fontsize=8, markerscale=8, framealpha=0.9)

@@ -10,9 +10,12 @@ import argparse
 import importlib
 import logging
 import sys
+from pathlib import Path
 
 from stereo_recon import __version__
+from stereo_recon.cli_help import finish_help
 from stereo_recon.errors import StereoReconError
+from stereo_recon.progress import abandon_open, quiet_native_libraries, quiet_open3d
 
 # Modules that contribute subcommands, in the order they appear in --help.
 COMMAND_MODULES = (
@@ -30,8 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Truck length/width/height and over-limit verdicts from drone stereo video.",
     )
     parser.add_argument("--version", action="version", version=f"stereo-recon {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
-    parser.add_argument("-q", "--quiet", action="store_true", help="only errors")
+    _add_verbosity(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         try:
@@ -42,30 +44,125 @@ def build_parser() -> argparse.ArgumentParser:
                 continue
             raise
         mod.register(sub)
+    for sp in sub.choices.values():
+        _add_verbosity(sp, top=False)
+    finish_help(parser, sub)
     return parser
 
 
+def _add_verbosity(parser: argparse.ArgumentParser, top: bool) -> None:
+    """-v/-q, on the main parser and again on each subcommand (so ``stereo-recon run -v`` works too)."""
+    # On a subcommand the defaults are SUPPRESS, so an absent flag there keeps the main parser's value.
+    parser.add_argument("-v", "--verbose", action="count", default=0 if top else argparse.SUPPRESS,
+                        help="more log output on the terminal: -v info, -vv debug (log.txt always has debug) (default: warnings)")
+    parser.add_argument("-q", "--quiet", action="store_true", default=False if top else argparse.SUPPRESS,
+                        help="only errors on the terminal, no progress bars (default: off)")
+
+
+_LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+# Third-party loggers that flood a debug log with internals (font lookup, PNG chunks).
+_NOISY_LOGGERS = ("matplotlib", "PIL", "fontTools", "numba", "ray")
+
+
 def _configure_logging(verbose: int, quiet: bool) -> None:
+    """Terminal: WARNING (-v INFO, -vv DEBUG, -q ERROR), timestamped, written above any progress bar."""
+    from stereo_recon.progress import TqdmLogHandler
+
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    root = logging.getLogger()
+    for h in list(root.handlers):
+        if getattr(h, "_stereo_recon", False):
+            root.removeHandler(h)
+    root.setLevel(logging.DEBUG)  # the handlers choose; log.txt takes everything
+    for name in _NOISY_LOGGERS:
+        logging.getLogger(name).setLevel(logging.WARNING)
+    if root.handlers:
+        return  # a host (an embedding program, a test harness) already shows log records, as logging.basicConfig
+    console = TqdmLogHandler(sys.stderr)
+    console.setLevel(level)
+    console.setFormatter(logging.Formatter(_LOG_FORMAT, datefmt="%H:%M:%S"))
+    console._stereo_recon = True  # type: ignore[attr-defined]
+    root.addHandler(console)
+
+
+def _open_log_file(args, argv: list[str] | None) -> tuple[logging.Handler | None, Path | None, bool]:
+    """A debug-level, timestamped ``log.txt`` in the command's output folder (appended; one header per command).
+
+    Returns (handler, folder, whether the folder was created here); commands whose --out is a file get none.
+    """
+    out = getattr(args, "out", None)
+    if out is None:
+        return None, None, False
+    folder = Path(out)
+    if folder.suffix.lower() in _FILE_OUTPUTS:
+        return None, None, False  # a file, not an output folder: no log beside it in someone's folder
+    created = not folder.exists()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        handler = logging.FileHandler(folder / "log.txt", mode="a", encoding="utf-8")
+    except OSError:
+        return None, None, False  # the command itself reports an unusable --out
+    handler.setLevel(logging.DEBUG)
+    handler.setFormatter(logging.Formatter(_LOG_FORMAT.replace("%(asctime)s", "%(asctime)s.%(msecs)03d"),
+                                           datefmt="%Y-%m-%dT%H:%M:%S"))
+    handler._stereo_recon = True  # type: ignore[attr-defined]
+    logging.getLogger().addHandler(handler)
+    cmd = " ".join(sys.argv[:1] + list(sys.argv[1:] if argv is None else argv))
+    logging.getLogger("stereo_recon.cli").debug("stereo-recon %s: %s (cwd %s)", __version__, cmd, Path.cwd())
+    return handler, folder, created
+
+
+# Commands that import Open3D (its own warnings would reach the terminal).
+_FUSING_COMMANDS = {"run", "reconstruct", "bench", "batch"}
+# --out values that name a file, not a folder (calibrate's rig file, calib-check's JSON).
+_FILE_OUTPUTS = {".yaml", ".yml", ".xml", ".json", ".conf"}
+
+
+def _close_log_file(handler, folder: Path | None, created: bool, code: int, refused: bool) -> None:
+    """Close log.txt; a folder this command created and left with nothing but the log of a refused input, option
+    or failed stage is removed (a failure leaves no output folder behind; the error line says what went wrong)."""
+    if handler is None:
+        return
+    logging.getLogger("stereo_recon.cli").debug("exit code %d", code)
+    logging.getLogger().removeHandler(handler)
+    handler.close()
+    if created and refused and folder is not None and [p.name for p in folder.iterdir()] == ["log.txt"]:
+        (folder / "log.txt").unlink()
+        folder.rmdir()
 
 
 def main(argv: list[str] | None = None) -> int:
+    quiet_native_libraries()  # before any cv2/open3d import: FFmpeg and Open3D messages stay off the terminal
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     _configure_logging(args.verbose, args.quiet)
+    handler, folder, created = _open_log_file(args, argv)
+    code, refused = 1, False
+    if args.command in _FUSING_COMMANDS:
+        quiet_open3d()
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
     except StereoReconError as err:
+        refused = True
+        abandon_open()
         msg = " ".join(str(err).split())  # one line, always
+        logging.getLogger("stereo_recon.cli").debug("error", exc_info=True)
         print(f"stereo-recon {args.command}: error: {msg}", file=sys.stderr)
-        return err.exit_code
+        code = err.exit_code
     except KeyboardInterrupt:
+        abandon_open()
         print(f"stereo-recon {args.command}: interrupted", file=sys.stderr)
-        return 130
+        code = 130
+    except BaseException:
+        abandon_open()
+        logging.getLogger("stereo_recon.cli").exception("unexpected failure")
+        raise
+    finally:
+        _close_log_file(handler, folder, created, code, refused)
+    return code
 
 
 if __name__ == "__main__":

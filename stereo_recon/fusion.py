@@ -351,19 +351,27 @@ class TSDFFusion:
         if self._vbg is None:
             raise StageError("fusion", "no frame with valid depth was integrated, so there is no surface to extract")
 
-    def extract_cloud(self, min_weight: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Surface points (N, 3) float64 m (world) and their colours (N, 3) float64 RGB in [0, 1]."""
+    def extract_cloud(self, min_weight: float | None = None, normals: bool = False):
+        """Surface points (N, 3) float64 m (world) and their colours (N, 3) float64 RGB in [0, 1].
+
+        normals: also return unit normals (N, 3), the TSDF's gradient, so pointing out of the surface
+        toward the free space the cameras saw it from (a third element of the tuple).
+        """
         self._require_grid()
         wt = self.config.min_weight if min_weight is None else min_weight
         pcd = self._vbg.extract_point_cloud(weight_threshold=float(wt))
         if "positions" not in pcd.point or pcd.point.positions.shape[0] == 0:
-            return np.zeros((0, 3)), np.zeros((0, 3))
+            return (np.zeros((0, 3)),) * (3 if normals else 2)
         pts = pcd.point.positions.cpu().numpy().astype(np.float64)
         cols = pcd.point.colors.cpu().numpy().astype(np.float64) if "colors" in pcd.point else np.zeros_like(pts)
         # The hash map's block order depends on thread scheduling, so the same volume comes out in a
         # different order each run; sorting makes cloud.ply (and all that reads it) reproducible.
         order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
-        return pts[order], np.clip(cols[order], 0.0, 1.0)
+        if not normals:
+            return pts[order], np.clip(cols[order], 0.0, 1.0)
+        nrm = pcd.point.normals.cpu().numpy().astype(np.float64)[order]
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        return pts[order], np.clip(cols[order], 0.0, 1.0), nrm
 
     def extract_mesh(self, min_weight: float | None = None):
         """Marching-cubes surface as a legacy ``open3d.geometry.TriangleMesh`` (vertex colours RGB [0, 1])."""
@@ -372,8 +380,9 @@ class TSDFFusion:
         return self._vbg.extract_triangle_mesh(weight_threshold=float(wt)).to_legacy()
 
 
-def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None = None) -> Path:
-    """Write a binary PLY point cloud (points (N,3) m; colours (N,3) RGB in [0, 1] or uint8)."""
+def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None = None,
+                    normals: np.ndarray | None = None) -> Path:
+    """Write a binary PLY point cloud (points (N,3) m; colours (N,3) RGB in [0, 1] or uint8; unit normals (N,3))."""
     import open3d as o3d
 
     path = Path(path)
@@ -382,6 +391,8 @@ def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None 
         c = np.asarray(colors_rgb)
         c = c / 255.0 if c.dtype == np.uint8 else c
         pcd.colors = o3d.utility.Vector3dVector(np.asarray(c, dtype=np.float64))
+    if normals is not None and len(normals):
+        pcd.normals = o3d.utility.Vector3dVector(np.asarray(normals, dtype=np.float64))
     if not o3d.io.write_point_cloud(str(path), pcd, write_ascii=False):
         raise OSError(f"{path}: could not write point cloud")
     return path

@@ -16,6 +16,7 @@ import numpy as np
 
 from stereo_recon.errors import InputError, StageError, StereoReconError
 from stereo_recon.manifest import sha256_file, to_jsonable, write_json_atomic
+from stereo_recon.progress import ProgressConfig, StageProgress
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +81,7 @@ class RunConfig:
     # measurement's own uncertainty before the verdict (None or zeros: the cloud is taken as exact).
     reconstruction_rel_sigma: dict | None = field(default_factory=lambda: dict(RECONSTRUCTION_REL_SIGMA))
     quiet: bool = False                  # no progress line on the terminal
+    case: dict | None = None             # {site, operator, case_id} for the report (free text)
 
 
 def find_sample() -> tuple[Path, Path]:
@@ -127,17 +129,16 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     paths = RunPaths(Path(out_dir))
     stages: dict[str, dict] = {}
 
+    progress = StageProgress(config=ProgressConfig(enabled=not config.quiet))
     t0 = time.perf_counter()
     rcfg = replace(ReconstructConfig(poses=config.poses, rectified=config.rectified), **config.reconstruct_overrides)
     if config.resume and _stage_done(paths, video, rcfg):
         log.info("reconstruct: reusing %s", paths.cloud)
         stages["reconstruct"] = {"status": "reused"}
     else:
-        from stereo_recon.reconstruct import TerminalProgress
         from stereo_recon.video import open_stereo_source
 
         rig = parse_calib_arg(str(calib), image_size=open_stereo_source(video).eye_size)
-        progress = TerminalProgress(enabled=False if config.quiet else None)
         try:
             reconstruct(video, rig, paths.root, rcfg, calib_path=Path(calib) if Path(calib).exists() else None,
                         progress=progress)
@@ -159,7 +160,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
         result = measure_cloud_file(
             paths.cloud, paths.root, mcfg, up_hint=up, centre_hint=centre,
             regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
-            reconstruction_rel_sigma=config.reconstruction_rel_sigma,
+            reconstruction_rel_sigma=config.reconstruction_rel_sigma, progress=progress, case=config.case,
         )
     except StereoReconError as err:
         if isinstance(err, StageError):
@@ -167,6 +168,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
         raise StageError("measure", str(err)) from err
     except Exception as err:
         raise StageError("measure", f"{type(err).__name__}: {err}") from err
+    progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
     stages["measure"] = {"status": "done", "time_s": time.perf_counter() - t1}
 
     summary = {

@@ -8,7 +8,9 @@ import math
 import sys
 from pathlib import Path
 
+from measure.cli import add_case_options, case_fields
 from stereo_recon.errors import ConfigError, InputError
+from stereo_recon.progress import ProgressConfig, StageProgress
 
 
 def _add_job_options(p: argparse.ArgumentParser) -> None:
@@ -22,6 +24,12 @@ def _add_job_options(p: argparse.ArgumentParser) -> None:
                    help="wide-baseline depth from pairs of frames also on near scenes (far scenes get it anyway; vo poses)")
     p.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
                    help="bundle-adjust the fused views' VO poses with pycolmap SfM (auto: far scenes only; vo poses)")
+    p.add_argument("--frames", default=None, metavar="A:B", help="half-open frame range of the video to use, e.g. 100:400 (default: all)")
+    p.add_argument("--step", type=int, default=1, help="use every N-th frame")
+    p.add_argument("--preset", default="balanced", choices=("fast", "balanced", "quality", "wls"),
+                   help="disparity (SGBM) preset")
+    p.add_argument("--mesh", action="store_true", help="also write mesh.ply (marching cubes of the TSDF volume)")
+    add_case_options(p)
     p.add_argument("--reconstruction-sigma-pct", default=None, metavar="L,W,H",
                    help="relative standard error of the reconstruction per dimension (%%), added to the measurement's "
                         "uncertainty before the verdict (default: the bench's 0.32,1.44,0.51; 0,0,0 = none)")
@@ -38,24 +46,32 @@ def register(sub) -> None:
     _add_job_options(p)
     p.set_defaults(func=_cmd_run)
 
-    b = sub.add_parser("batch", help="process many recordings (local process pool or Ray)")
-    b.add_argument("videos", nargs="+", type=Path)
-    b.add_argument("--calib", required=True)
-    b.add_argument("--out", type=Path, required=True)
-    b.add_argument("--workers", type=int, default=1)
-    b.add_argument("--executor", choices=("local", "ray"), default="local")
-    b.add_argument("--resume", action="store_true")
+    b = sub.add_parser("batch", help="process many recordings (local process pool or Ray)",
+                       description="Run the whole job (reconstruct, measure, report) on each video, one output folder "
+                                   "per video (OUT/<video name>), in parallel, and write OUT/summary.csv with one row "
+                                   "per recording. All videos share one calibration.")
+    b.add_argument("videos", nargs="+", type=Path, help="side-by-side videos (or folders of left/right images)")
+    b.add_argument("--calib", required=True, help="ZED .conf, rig YAML, or fx,fy,cx,cy,baseline_m, for every video")
+    b.add_argument("--out", type=Path, required=True, help="output folder: one subfolder per video and summary.csv")
+    b.add_argument("--workers", type=int, default=1, help="recordings processed at the same time")
+    b.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local process pool, or a Ray cluster (pip install .[ray])")
+    b.add_argument("--resume", action="store_true", help="reuse finished stages of each recording whose inputs are unchanged")
     _add_job_options(b)
     b.set_defaults(func=_cmd_batch)
 
-    c = sub.add_parser("bench", help="the paper's Table 2 on rendered model trucks, full-scale presets, parameter studies")
+    c = sub.add_parser("bench", help="the paper's Table 2 on rendered model trucks, full-scale presets, parameter studies",
+                       description="Render each truck of the paper's Table 2 (and two full-scale presets) with known "
+                                   "dimensions, run the whole pipeline on it and compare with the truth: writes "
+                                   "OUT/table2.md and .json (errors per dimension, times) and OUT/full-scale.md.")
     c.add_argument("--trucks", default="1-20", help="truck numbers of Table 2, e.g. 1-20 or 1,4,7-9")
-    c.add_argument("--poses", choices=("vo", "sfm"), default="vo")
-    c.add_argument("--out", type=Path, default=Path("out/bench"))
+    c.add_argument("--poses", choices=("vo", "sfm"), default="vo", help="pose back-end: stereo VO or pycolmap SfM")
+    c.add_argument("--out", type=Path, default=Path("out/bench"), help="output folder (scenes/, runs/, tables)")
     c.add_argument("--frames", type=int, default=None, help="frames per orbit (default: the preset's)")
-    c.add_argument("--seed", type=int, default=0)
-    c.add_argument("--workers", type=int, default=1)
-    c.add_argument("--executor", choices=("local", "ray"), default="local")
+    c.add_argument("--seed", type=int, default=0, help="random seed of the renders (truck N uses seed + N)")
+    c.add_argument("--workers", type=int, default=1, help="trucks processed at the same time")
+    c.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local process pool, or a Ray cluster (pip install .[ray])")
     c.add_argument("--no-full-scale", action="store_true", help="skip the full-scale presets (full-truck, over-height)")
     c.add_argument("--motion-stereo", action="store_true", help="motion stereo on every truck, not only far scenes (vo poses)")
     c.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
@@ -76,7 +92,7 @@ def _job_config(args, resume: bool):
     return RunConfig(poses=args.poses, regulation=args.regulation, vehicle_class=args.vehicle_class, scale=args.scale,
                      resume=resume, rectified=args.rectified, measure_config=args.config,
                      reconstruct_overrides=_reconstruct_overrides(args),
-                     quiet=bool(getattr(args, "quiet", False)), **extra)
+                     quiet=bool(getattr(args, "quiet", False)), case=case_fields(args), **extra)
 
 
 def _parse_sigma_pct(text: str) -> dict:
@@ -104,8 +120,25 @@ def _reconstruct_overrides(args) -> dict:
     refine = REFINE_POSES_CHOICES[getattr(args, "refine_poses", "auto")]
     if refine is not None:
         overrides["refine_poses_sfm"] = refine
+    overrides.update(_frame_overrides(args))
     if overrides:
         ReconstructConfig(poses=args.poses, **overrides)  # raises ConfigError for --poses sfm
+    return overrides
+
+
+def _frame_overrides(args) -> dict:
+    """Reconstruct overrides for ``--frames``, ``--step``, ``--preset`` and ``--mesh`` (as ``reconstruct`` takes them)."""
+    from stereo_recon.video import parse_frame_range
+
+    overrides: dict = {}
+    if getattr(args, "frames", None) is not None and isinstance(args.frames, str):
+        overrides["frame_range"] = parse_frame_range(args.frames)
+    if getattr(args, "step", 1) != 1:
+        overrides["step"] = args.step
+    if getattr(args, "preset", "balanced") != "balanced":
+        overrides["disparity_preset"] = args.preset
+    if getattr(args, "mesh", False):
+        overrides["mesh"] = True
     return overrides
 
 
@@ -115,6 +148,10 @@ def _print_summary(s: dict) -> None:
     print(f"length {s['length_m']:.3f} m ± {u.get('length', float('nan')):.3f}   "
           f"width {s['width_m']:.3f} m ± {u.get('width', float('nan')):.3f}   "
           f"height {s['height_m']:.3f} m ± {u.get('height', float('nan')):.3f}")
+    dims = v.get("dimensions") if isinstance(v, dict) and v.get("scale") else None
+    if dims:  # the verdict is about the real size: show it, not only the model's
+        print(f"real size (x{v['scale']:g}): " + "   ".join(
+            f"{d} {(dims.get(d) or {}).get('value_m', float('nan')):.3f} m" for d in ("length", "width", "height")))
     if isinstance(v, dict):
         reg = v.get("regulation", "?")
         reg = reg.get("name", "?") if isinstance(reg, dict) else reg
@@ -183,15 +220,23 @@ def _cmd_bench(args) -> int:
     jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, args.poses,
                                 overrides)) for p in full]
 
+    bar = StageProgress(("bench",), config=ProgressConfig(enabled=not getattr(args, "quiet", False)))
+    finished = 0
+
     def progress(r):
+        nonlocal finished
+        finished += 1
         if r["ok"]:
             e = r["error_pct"]
-            print(f"[{r['name']}] L {r['length_m']:.3f} W {r['width_m']:.3f} H {r['height_m']:.3f}  "
-                  f"err {e['length']:.2f}/{e['width']:.2f}/{e['height']:.2f}%  {r['time_s']:.1f}s", file=sys.stderr)
+            bar.write(f"[{r['name']}] L {r['length_m']:.3f} W {r['width_m']:.3f} H {r['height_m']:.3f}  "
+                      f"err {e['length']:.2f}/{e['width']:.2f}/{e['height']:.2f}%  {r['time_s']:.1f}s")
         else:
-            print(f"[{r['name']}] FAILED: {r['error']}", file=sys.stderr)
+            bar.write(f"[{r['name']}] FAILED: {r['error']}")
+        bar("bench", finished, len(jobs))
 
-    results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
+    with bar:
+        bar("bench", 0, len(jobs))
+        results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
     model = [r for r in results if r["name"].startswith("table2:")]
     fullscale = [r for r in results if not r["name"].startswith("table2:")]
     # A study runs only the six training trucks: its table must not overwrite a full Table 2 in the same folder.

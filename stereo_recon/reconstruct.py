@@ -31,7 +31,6 @@ import functools
 import logging
 import queue
 import shutil
-import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -557,6 +556,7 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                         100 * counts["valid_depth_fraction_mean"])
 
         # ---- poses --------------------------------------------------------------------------
+        report("poses", 0, None)
         with sw.stage("poses"):
             if mode == "vo":
                 traj = vo.finish()
@@ -629,6 +629,7 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                 for idx, mc in ex.map(wide_view, todo):
                     wide_views.add(idx)
                     motion_counts.append(mc)
+                    report("motion stereo", len(wide_views), len(todo))
             counts["motion_stereo_views"] = len(wide_views)
             ratios = [m["rig_ratio_median"] for m in motion_counts if np.isfinite(m["rig_ratio_median"])]
             if mode == "vo" and motion.rescale_trajectory and len(ratios) >= 3:
@@ -702,12 +703,13 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
         if motion_counts:
             counts["motion_stereo_wide_valid_mean"] = float(np.mean([m["wide_valid"] for m in motion_counts]))
             counts["motion_stereo_rig_filled_mean"] = float(np.mean([m["rig_filled"] for m in motion_counts]))
+        report("extract", 0, None)
         with sw.stage("extract"):
             min_w = min(fcfg.min_weight, max(1.0, fused / 3.0))  # a handful of views must still give points
-            pts, rgb = fusion.extract_cloud(min_weight=min_w)
+            pts, rgb, normals = fusion.extract_cloud(min_weight=min_w, normals=True)
             if len(pts) == 0:
                 raise StageError("fusion", "the fused volume has no surface points (no overlapping valid depth)")
-            write_cloud_ply(stage_dir / "cloud.ply", pts, rgb)
+            write_cloud_ply(stage_dir / "cloud.ply", pts, rgb, normals)
             if c.mesh:
                 import open3d as o3d
 
@@ -738,6 +740,7 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                           "tracking_gaps": traj.stats.get("gaps", traj.stats.get("tracking_gaps", [])),
                           "path_length_m": traj.path_length_m()},
                 "fusion": asdict(fusion.stats),
+                "fused_views": [int(i) for i in posed],  # frame indices of the fused views (COLMAP export)
                 "voxel_m": fusion.voxel_m,
                 "up": up,
                 "outputs": sorted(["cloud.ply", "poses.txt", "run.json"] + (["mesh.ply"] if c.mesh else [])),
@@ -747,35 +750,3 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
             shutil.rmtree(work, ignore_errors=True)
         write_json_atomic(stage_dir / "run.json", manifest)
     return manifest
-
-
-class TerminalProgress:
-    """One updating stderr line per stage when stderr is a terminal; silent otherwise."""
-
-    def __init__(self, stream=None, enabled: bool | None = None):
-        self.stream = stream or sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self._stage = None
-        self._t0 = time.perf_counter()
-        self._last = 0.0
-
-    def __call__(self, stage: str, done: int, total: int | None) -> None:
-        if not self.enabled:
-            return
-        now = time.perf_counter()
-        if stage != self._stage:
-            if self._stage is not None:
-                self.stream.write("\n")
-            self._stage, self._t0, self._last = stage, now, 0.0
-        if now - self._last < 0.2 and not (total and done >= total):
-            return
-        self._last = now
-        rate = done / max(now - self._t0, 1e-9)
-        of = f"/{total}" if total else ""
-        self.stream.write(f"\r{stage}: {done}{of} ({rate:.1f}/s)   ")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled and self._stage is not None:
-            self.stream.write("\n")
-            self.stream.flush()

@@ -39,6 +39,9 @@ def register(subparsers) -> None:
                    help="frames are already rectified (ZED SDK exports): skip rectification")
     p.add_argument("--gpu", action="store_true", help="rectify on a CUDA GPU with torch/kornia (pip install .[gpu])")
     p.add_argument("--keep-work", action="store_true", help="keep keyframe images/depth maps in OUT/work")
+    p.add_argument("--export-colmap", default=None, metavar="DIR",
+                   help="also write the fused views as a COLMAP model: DIR/sparse/0 (cameras, images with poses) and "
+                        "DIR/images (their left frames)")
     p.add_argument("--motion-stereo", action="store_true",
                    help="match each fused view with a later frame ~0.11 x the depth away (a wide baseline) and fuse "
                         "that depth, also on near scenes (far scenes get it anyway); vo or gt poses only")
@@ -56,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     from calib.io import parse_calib_arg
     from stereo_recon.errors import ConfigError
     from stereo_recon.motion_stereo import MotionStereoConfig
-    from stereo_recon.reconstruct import ReconstructConfig, TerminalProgress, reconstruct
+    from stereo_recon.progress import ProgressConfig, StageProgress
+    from stereo_recon.reconstruct import ReconstructConfig, reconstruct
     from stereo_recon.video import open_stereo_source, parse_frame_range
 
     if args.gpu:
@@ -75,12 +79,19 @@ def run(args: argparse.Namespace) -> int:
         motion_stereo=MotionStereoConfig() if args.motion_stereo else None,
         refine_poses_sfm=REFINE_POSES_CHOICES[args.refine_poses],
     )
-    progress = TerminalProgress(enabled=None if not getattr(args, "quiet", False) else False)
+    progress = StageProgress(("depth", "poses", "sfm", "motion stereo", "fusion", "extract"),
+                             config=ProgressConfig(enabled=not getattr(args, "quiet", False)))
     calib_path = Path(args.calib) if Path(args.calib).exists() else None
     try:
         man = reconstruct(args.video, rig, args.out, config, calib_path=calib_path, progress=progress)
     finally:
         progress.close()
+    if args.export_colmap:
+        from stereo_recon.colmap_export import export_colmap
+
+        model = export_colmap(args.out, args.export_colmap)
+        if not getattr(args, "quiet", False):
+            print(f"  COLMAP model: {model} (images in {Path(args.export_colmap) / 'images'})")
     if not getattr(args, "quiet", False):
         cnt, poses = man["counts"], man["poses"]
         gaps = poses.get("tracking_gaps") or []

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from measure.schema import read_measurement  # every measurement.json a test writes is checked against its schema
 from stereo_recon.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -21,10 +22,15 @@ def test_run_on_sample_data_matches_truth(tmp_path, monkeypatch, capsys):
     out = tmp_path / "out" / "run"
     for name in ("cloud.ply", "poses.txt", "run.json", "measurement.json", "report.html", "job.json"):
         assert (out / name).is_file(), name
-    m = json.loads((out / "measurement.json").read_text())
+    m = read_measurement(out)
     for dim in ("length", "width", "height"):
         err = abs(m[f"{dim}_m"] - truth[f"{dim}_m"]) / truth[f"{dim}_m"]
         assert err < 0.02, f"{dim}: measured {m[f'{dim}_m']:.4f} m, truth {truth[f'{dim}_m']:.4f} m ({100 * err:.2f} %)"
+    # The report's evidence: source video and calibration with sha256, a keyframe with the box; a log of the run.
+    assert m["recording"]["video"]["sha256"] and m["recording"]["calib"]["sha256"] and "keyframe" in m["recording"]
+    assert (out / "keyframe.jpg").is_file() and (out / "log.txt").is_file()
+    html = (out / "report.html").read_text(encoding="utf-8")
+    assert m["recording"]["video"]["sha256"] in html and "video.avi" in html
     # A model truck gets no legal verdict without a scale factor.
     assert m["verdict"]["overall"] == "not-applicable"
     printed = capsys.readouterr().out

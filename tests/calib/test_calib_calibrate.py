@@ -261,7 +261,10 @@ def test_calib_check_resolution_mismatch(tmp_path, capsys):
         cv2.imwrite(str(tmp_path / "pairs" / f"left{k}.png"), np.zeros((376, 672), np.uint8))
         cv2.imwrite(str(tmp_path / "pairs" / f"right{k}.png"), np.zeros((376, 672), np.uint8))
     calib = "500,500,320,240,0.12,640,480"
-    _run_fails(capsys, ["calib-check", "--calib", calib, str(tmp_path / "pairs")], "640x480", "672x376", "aspect")
+    # a calibration for another frame shape does not fit the video: a finding, exit 1 as documented (not 2)
+    assert main(["calib-check", "--calib", calib, str(tmp_path / "pairs")]) == 1
+    text = capsys.readouterr().out
+    assert "calibration_mismatch" in text and "640x480" in text and "672x376" in text and "aspect" in text
     conf = tmp_path / "SN1.conf"
     conf.write_text("[LEFT_CAM_HD]\nfx=700\nfy=700\ncx=640\ncy=360\n[RIGHT_CAM_HD]\nfx=700\nfy=700\ncx=640\n"
                     "[STEREO]\nBaseline=120\nCV_HD=0\nRX_HD=0\nRZ_HD=0\n")

@@ -262,3 +262,27 @@ def test_parse_calib_arg(tmp_path):
         parse_calib_arg(str(tmp_path / "x.conf"))
     p = save_rig(make_rig(), tmp_path / "r.yaml")
     assert parse_calib_arg(str(p)) == make_rig()
+
+
+def test_rig_yaml_carries_the_rectification(tmp_path):
+    """R1 R2 P1 P2 Q in the rig YAML (as OpenCV's stereo sample writes them) are the rectification the pipeline uses."""
+    import cv2
+
+    from calib.io import load_rig, save_rig
+
+    rig = make_rig()
+    path = save_rig(rig, tmp_path / "rig.yaml")
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    rect = rig.rectification(0.0)
+    for name in ("R1", "R2", "P1", "P2", "Q"):
+        assert np.allclose(fs.getNode(name).mat(), getattr(rect, name)), name
+    # rectifying a point with the file's matrices alone gives the same row in both eyes (a point 5 m away)
+    X = np.array([[0.3, -0.2, 5.0]])
+    pl, _ = cv2.projectPoints(X, np.zeros(3), np.zeros(3), fs.getNode("K1").mat(), fs.getNode("D1").mat())
+    pr, _ = cv2.projectPoints(X, cv2.Rodrigues(fs.getNode("R").mat())[0], fs.getNode("T").mat(), fs.getNode("K2").mat(),
+                              fs.getNode("D2").mat())
+    ul = cv2.undistortPoints(pl, fs.getNode("K1").mat(), fs.getNode("D1").mat(), R=fs.getNode("R1").mat(), P=fs.getNode("P1").mat())
+    ur = cv2.undistortPoints(pr, fs.getNode("K2").mat(), fs.getNode("D2").mat(), R=fs.getNode("R2").mat(), P=fs.getNode("P2").mat())
+    assert abs(float(ul[0, 0, 1] - ur[0, 0, 1])) < 1e-3
+    fs.release()
+    assert np.allclose(load_rig(path).R, rig.R)  # the reader still takes K1 D1 K2 D2 R T

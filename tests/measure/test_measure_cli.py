@@ -9,6 +9,7 @@ import pytest
 
 from measure.cloud_io import write_cloud
 from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, TruckShape, make_truck_scene
+from measure.schema import read_measurement  # every measurement.json a test writes is checked against its schema
 from stereo_recon.cli import main
 
 
@@ -37,7 +38,7 @@ def test_measure_writes_json_plots_and_report(truck_ply, tmp_path, capsys):
     assert main(["measure", str(path), "--out", str(out), "--scale", "6"]) == 0
     text = capsys.readouterr().out
     assert "length" in text and "verdict" in text
-    m = json.loads((out / "measurement.json").read_text())
+    m = read_measurement(out)
     for d in ("length", "width", "height"):
         assert abs(m[f"{d}_m"] - truth[f"{d}_m"]) / truth[f"{d}_m"] < 0.01
         assert m["uncertainty_m"][d] > 0
@@ -55,7 +56,7 @@ def test_model_truck_without_scale_gets_no_legal_verdict(truck_ply, tmp_path, ca
     path, _ = truck_ply
     out = tmp_path / "o2"
     assert main(["measure", str(path), "--out", str(out), "--no-plots", "--eps", "0.03", "--bootstrap", "5"]) == 0
-    m = json.loads((out / "measurement.json").read_text())
+    m = read_measurement(out)
     assert m["verdict"]["overall"] == "not-applicable"
     assert m["parameters"]["resolved"]["eps_m"] == 0.03
 
@@ -123,7 +124,7 @@ def test_hints_and_config_file(truck_ply, tmp_path, capsys):
     centre = ",".join(f"{v:.4f}" for v in truth["truck_centre"])
     out = tmp_path / "o"
     assert main(["measure", str(path), "--out", str(out), "--no-plots", "--config", str(tmp_path / "m.yaml"), "--up", up, "--centre", centre]) == 0
-    m = json.loads((out / "measurement.json").read_text())
+    m = read_measurement(out)
     assert m["ground_plane"]["initial_normal_source"] == "up_hint"
     assert np.degrees(np.arccos(np.dot(m["ground_plane"]["normal"], truth["up"]))) < 0.1
     assert m["clusters"]["selection_rule"] == "nearest_to_centre_hint"
@@ -142,10 +143,12 @@ def test_reconstruction_error_widens_the_verdict_interval(tmp_path):
     path = tmp_path / "truck.ply"
     write_cloud(path, pts)
     alone = measure_cloud_file(path, tmp_path / "a", plots=False, html=False)
+    read_measurement(tmp_path / "a")
     assert abs(alone["width_m"] - 2.50) < 0.02
     assert alone["verdict"]["dimensions"]["width"]["verdict"] == "within" and "uncertainty_parts" not in alone
     rel = {"length": 0.0032, "width": 0.0144, "height": 0.0051}
     both = measure_cloud_file(path, tmp_path / "b", plots=False, html=True, reconstruction_rel_sigma=rel)
+    read_measurement(tmp_path / "b")
     assert both["verdict"]["dimensions"]["width"]["verdict"] == "undecided"
     u, parts = both["uncertainty_m"], both["uncertainty_parts"]
     for d in ("length", "width", "height"):
@@ -164,3 +167,17 @@ def test_run_parses_the_reconstruction_sigma_option():
     for bad in ("1,2", "a,b,c", "1,-1,1", "1,nan,1"):
         with pytest.raises(ConfigError, match="reconstruction-sigma-pct"):
             _parse_sigma_pct(bad)
+
+
+def test_case_fields_and_real_size_with_scale(truck_ply, tmp_path, capsys):
+    path, _ = truck_ply
+    out = tmp_path / "case"
+    assert main(["measure", str(path), "--out", str(out), "--scale", "8", "--case-id", "2026-0117", "--site", "G4 收费站",
+                 "--operator", "Li Wei"]) == 0
+    m = read_measurement(out)
+    assert m["case"] == {"site": "G4 收费站", "operator": "Li Wei", "case_id": "2026-0117"}
+    text = capsys.readouterr().out
+    real = m["verdict"]["dimensions"]["length"]["value_m"]
+    assert abs(real - 8 * m["length_m"]) < 1e-9 and f"{real:.3f} m" in text  # the size the verdict is about
+    html = (out / "report.html").read_text(encoding="utf-8")
+    assert "2026-0117" in html and "G4 收费站" in html

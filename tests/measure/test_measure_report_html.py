@@ -97,7 +97,7 @@ def test_all_text_is_escaped(tmp_path):
     assert "<img src=http" not in text
     assert "<b>key</b>" not in text and "&lt;b&gt;key&lt;/b&gt;" in text and "a&amp;b" in text
     tags, _ = _parse(text)
-    assert sum(t == "script" for t, _ in tags) == 1   # only the report's own print helper
+    assert not any(t == "script" for t, _ in tags)   # no script at all: the appendix stays collapsed in print
     assert "WITHIN THE LIMITS" in text
 
 
@@ -154,3 +154,63 @@ def test_render_from_dir_picks_up_measurement_plots_and_run_json(tmp_path):
     srcs = [a["src"] for t, a in tags if t == "img"]
     assert [base64.b64decode(s.split(",", 1)[1]) for s in srcs] == [(tmp_path / n).read_bytes() for n in ("top_view.png", "side_view.png")]
     assert "OVER THE LIMIT" in visible and "f" * 64 in visible and SHA in visible
+
+
+def test_report_for_an_officer_first_page_evidence_and_signed_margins(tmp_path):
+    # length 0.2 m over the 18.1 m limit, tight uncertainty: an unambiguous 'over by 0.200 m'
+    m = _measurement({"length": 18.3, "width": 2.40, "height": 3.9}, {"length": 0.02, "width": 0.01, "height": 0.01})
+    m["case"] = {"case_id": "2026-0117", "site": "G4 收费站 12", "operator": "Li Wei"}
+    m["recording"] = {"video": {"path": "/flights/truck7.mp4", "sha256": "a" * 64},
+                      "calib": {"path": "/calib/SN28000001.conf", "sha256": "b" * 64},
+                      "recorded": "2026-11-20 09:41:07", "source": "container metadata (creation date)",
+                      "keyframe": {"frame": 120, "time_s": 8.0}}
+    m["data_quality"] = {"ok": False, "checks": [{"name": "ground_visible", "status": "pass", "detail": "62 % ground"},
+                                                 {"name": "coverage", "status": "fail", "detail": "one side never seen"}]}
+    imgs = {"keyframe": _png(tmp_path / "kf.png", (10, 200, 10)), "top_view": _png(tmp_path / "top.png", (0, 0, 255))}
+    text = render_report_html(m, imgs, tmp_path / "r.html").read_text(encoding="utf-8")
+    tags, visible = _parse(text)
+    visible = " ".join(visible.replace("\xa0", " ").split())
+    for s in ("2026-0117", "G4 收费站 12", "Li Wei", "truck7.mp4", "a" * 64, "SN28000001.conf", "b" * 64,
+              "2026-11-20 09:41:07", "frame 120", "over by 0.200 m", "0.150 m under", "coverage", "one side never seen"):
+        assert s in visible, s
+    assert "FAILED" in visible  # the data-quality verdict
+    # the keyframe comes with the recording, before the plots, which start a new printed page
+    srcs = [a["src"] for t, a in tags if t == "img"]
+    assert base64.b64decode(srcs[0].split(",", 1)[1]) == imgs["keyframe"].read_bytes()
+    assert text.index("Recording") < text.index("class='newpage'>Plots") < text.index("Appendix")
+    # appendix collapsed (no 'open'), CJK-capable font stack, a layout for phone widths
+    assert [a for t, a in tags if t == "details"] and not any("open" in a for t, a in tags if t == "details")
+    assert '"Noto Sans CJK SC"' in text and "Microsoft YaHei" in text and "@media (max-width: 700px)" in text
+    assert all("data-label" in a for t, a in tags if t == "td" and "verdict" in a.get("class", ""))
+
+
+def test_data_quality_absent_reads_not_assessed(tmp_path):
+    m = _measurement({"length": 12.0, "width": 2.5, "height": 3.8}, {"length": 0.02, "width": 0.01, "height": 0.01})
+    _, visible = _parse(render_report_html(m, {}, tmp_path / "r.html").read_text())
+    assert "not assessed" in visible
+
+
+@pytest.mark.slow
+def test_printed_report_finding_on_page_one(tmp_path):
+    """Headless Chromium prints the report: the finding is on page 1, the whole report on a few pages."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from report_screenshots import find_browser, shoot
+
+    browser = find_browser()
+    if browser is None or not shutil.which("pdftotext"):
+        pytest.skip("needs chromium and poppler-utils (apt-get install -y chromium fonts-noto-cjk poppler-utils)")
+    m = _measurement({"length": 18.3, "width": 2.40, "height": 3.9}, {"length": 0.02, "width": 0.01, "height": 0.01})
+    m["parameters"] = {f"p{i}": list(range(40)) for i in range(60)}  # a long appendix must stay collapsed
+    imgs = {k: _png(tmp_path / f"{k}.png", (0, 0, 200), size=(500, 900)) for k in ("top_view", "side_view", "width_density")}
+    report = render_report_html(m, imgs, tmp_path / "report.html")
+    res = shoot(report, tmp_path / "shots", browser)
+    page1 = subprocess.run(["pdftotext", "-f", "1", "-l", "1", str(res["pdf"]), "-"], capture_output=True, text=True).stdout
+    page1 = " ".join(page1.replace("\xa0", " ").split())
+    assert "OVER THE LIMIT" in page1 and "over by 0.200" in page1
+    assert len(res["pages"]) <= 3
+    assert res["screen_420"].stat().st_size > 0 and res["screen_1280"].stat().st_size > 0

@@ -221,3 +221,37 @@ def test_raw_rig_goes_through_rectification(orbit, tmp_path):
     pts = np.asarray(o3d.io.read_point_cloud(str(tmp_path / "out" / "cloud.ply")).points)
     dist = scene.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy()
     assert np.median(dist) < 0.01
+
+
+def test_cli_export_colmap_and_cloud_normals(orbit, tmp_path, capsys):
+    """--export-colmap: a COLMAP model whose poses are poses.txt's fused views; cloud.ply normals face outward."""
+    pycolmap = pytest.importorskip("pycolmap")
+    from stereo_recon.trajectory import read_tum
+
+    root, _, _ = orbit
+    calib = f"{F},{F},{K[0, 2]},{K[1, 2]},{B},{W},{H}"
+    out, colmap = tmp_path / "o", tmp_path / "colmap"
+    rc = cli_main(["reconstruct", str(root / "frames"), "--calib", calib, "--out", str(out),
+                   "--poses", f"gt:{root / 'poses_gt.txt'}", "--fps", str(FPS), "--depth-min-m", "1",
+                   "--depth-max-m", "4", "--step", "6", "--preset", "fast", "--export-colmap", str(colmap)])
+    assert rc == 0 and "COLMAP model" in capsys.readouterr().out
+    run = json.loads((out / "run.json").read_text())
+    rec = pycolmap.Reconstruction(str(colmap / "sparse" / "0"))
+    traj = read_tum(out / "poses.txt", fps=FPS)
+    pose_of = {int(i): T for i, T in zip(traj.indices, traj.T_wc)}
+    assert rec.num_images() == len(run["fused_views"]) == run["counts"]["keyframes_fused"] > 0
+    cam = rec.cameras[1]
+    assert (cam.width, cam.height) == (W, H) and np.allclose(cam.params[:4], [F, F, K[0, 2], K[1, 2]])
+    for image in rec.images.values():
+        idx = int(image.name.removeprefix("frame_").removesuffix(".png"))
+        T_cw = np.vstack([image.cam_from_world().matrix(), [0, 0, 0, 1]])
+        assert np.allclose(np.linalg.inv(T_cw), pose_of[idx], atol=1e-6)
+        assert (colmap / "images" / image.name).is_file()
+    # normals: unit length, and on the box's top they point up (toward the cameras above), not into the box
+    pcd = o3d.io.read_point_cloud(str(out / "cloud.ply"))
+    pts, nrm = np.asarray(pcd.points), np.asarray(pcd.normals)
+    assert nrm.shape == pts.shape and np.allclose(np.linalg.norm(nrm, axis=1), 1.0, atol=1e-6)
+    top = (np.abs(pts[:, 0]) < 0.4) & (np.abs(pts[:, 1]) < 0.25) & (pts[:, 2] > BOX_MAX[2] - 0.03)
+    assert top.sum() > 50 and np.median(nrm[top, 2]) > 0.9
+    side = (pts[:, 0] > BOX_MAX[0] - 0.03) & (np.abs(pts[:, 1]) < 0.3) & (pts[:, 2] > 0.1) & (pts[:, 2] < 0.4)
+    assert side.sum() > 20 and np.median(nrm[side, 0]) > 0.8

@@ -138,6 +138,7 @@ def test_motion_stereo_views_are_fused_and_accurate(tmp_path_factory, tmp_path):
 def test_far_scene_switches_to_motion_stereo(tmp_path_factory, tmp_path):
     """A full-scale truck (5-8 px of rig disparity), end to end: VO on dense depth, SfM bundle adjustment
     of the fused views, motion stereo, trajectory rescaled, measurement and verdict."""
+    from measure.schema import read_measurement
     from stereo_recon.bench import verdict_matches
     from stereo_recon.pipeline import RunConfig, run_video
     from stereo_recon.synthetic.sequence import render_sequence
@@ -149,6 +150,7 @@ def test_far_scene_switches_to_motion_stereo(tmp_path_factory, tmp_path):
     rig = load_rig(d / "rig.yaml")
     out = tmp_path / "out"
     summary = run_video(d / "video.avi", d / "SN28000001.conf", out, RunConfig(quiet=True))
+    read_measurement(out)  # measurement.json against its JSON Schema
     counts = json.loads((out / "run.json").read_text())["counts"]
     assert counts["far_scene"] and counts["first_view_disparity_px"] < 16
     assert counts["frames_depth"] >= counts["frames_read"] - 2  # dense depth for VO from the second frame on
