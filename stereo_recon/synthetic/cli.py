@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-RANDOM_SEEDS_HELP = "0-99 are for tuning, 2026 (EVALUATION_SEED) for reported figures"
+from stereo_recon.synthetic.seeds import EVALUATION_SEED
+
+RANDOM_SEEDS_HELP = f"0-99 are for tuning, {EVALUATION_SEED} (EVALUATION_SEED) for reported figures"
 PRESET_HELP = ("model-truck (2.1 x 0.38 x 0.38 m, the paper's scale), full-truck (12 x 2.55 x 4.0 m), over-height (4.3 m tall), "
                "two-vehicles, calibration-board (chessboard video), table2:N (N = 1..20, the paper's Table 2 trucks)")
 
@@ -25,7 +27,7 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same bytes (default 0)")
     p.add_argument("--max-frames", type=int, default=None, metavar="N",
                    help="with --random: cap each draw's 60-200 frames at N for a quick run (recorded in the draw's spec)")
-    p.add_argument("--scale", choices=("model", "full"), default=None,
+    p.add_argument("--scale-only", choices=("model", "full"), default=None,
                    help="with --random: only model-scale or only full-scale trucks (the other factors are drawn as usual)")
     p.add_argument("--frames", type=int, default=None, help="number of stereo frames (default: the preset's)")
     p.add_argument("--rectified", action="store_true", help="render ideal rectified pinhole pairs (like an SVO export) instead of raw distorted eyes")
@@ -55,7 +57,7 @@ def _run_random(args) -> int:
         raise ConfigError(f"--random: {', '.join('--' + n.replace('_', '-') for n in given)} apply to --preset only (a draw's spec sets them)")
     if args.seed < 0:
         raise ConfigError(f"--seed: must be >= 0, got {args.seed}")
-    truths = render_random(args.random, args.seed, args.out, max_frames=args.max_frames, scale=args.scale, resolution=args.resolution)
+    truths = render_random(args.random, args.seed, args.out, max_frames=args.max_frames, scale=args.scale_only, resolution=args.resolution)
     for i, t in enumerate(truths):
         sp = t["random_spec"]
         print(f"{args.out}/draw_{i:03d}: {t['frames']} frames, {sp['truck']['scale']} {sp['truck']['kind']} {t['length_m']:.3f} x "
@@ -69,8 +71,8 @@ def _run(args) -> int:
 
     if args.random is not None:
         return _run_random(args)
-    if args.max_frames is not None or args.scale is not None:
-        raise ConfigError("--max-frames and --scale apply to --random only (use --frames with a preset)")
+    if args.max_frames is not None or args.scale_only is not None:
+        raise ConfigError("--max-frames and --scale-only apply to --random only (use --frames with a preset)")
     from stereo_recon.synthetic.render import RenderConfig
     from stereo_recon.synthetic.sequence import render_sequence
 

@@ -45,8 +45,7 @@ from stereo_recon.synthetic.scene import PanelSpec, TruckSpec, truck_scene
 
 log = logging.getLogger(__name__)
 
-EVALUATION_SEED = 2026  # the seed of the reported figures: never tune on it
-TUNING_SEEDS = range(0, 100)  # seeds for tuning and debugging
+from stereo_recon.synthetic.seeds import EVALUATION_SEED, TUNING_SEEDS  # noqa: F401 - re-exported
 
 SCALES = ("model", "full")
 KINDS = ("box", "semi", "flatbed", "tanker")
