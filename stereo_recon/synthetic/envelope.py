@@ -128,6 +128,7 @@ class FlightDraw:
     start_deg: float
     frames_drawn: int
     frames: int  # frames_drawn capped by the spec's max_frames
+    elevation_drawn_deg: float  # before the orbit was raised over a second vehicle in its way (else = elevation_deg)
     centre_offset_m: tuple[float, float]  # orbit centre - truck centre, world xy
     jitter_deg: float
     shake_deg: float
@@ -291,9 +292,35 @@ def _sample_flight(rng: np.random.Generator, t: TruckDraw, max_frames: int | Non
     off_r = _u(rng, (0.0, CENTRE_OFFSET_OVER_LENGTH)) * t.length_m
     off_a = _u(rng, (0.0, 2 * math.pi))
     return FlightDraw(ratio, radius, elev, altitude, _u(rng, (0.2, 0.6)) * t.height_m, _u(rng, ARC_DEG), _u(rng, (0.0, 360.0)),
-                      frames, frames if max_frames is None else min(frames, int(max_frames)),
+                      frames, frames if max_frames is None else min(frames, int(max_frames)), elev,
                       (off_r * math.cos(off_a), off_r * math.sin(off_a)), _u(rng, JITTER_DEG), _u(rng, SHAKE_DEG),
                       _u(rng, (0.002, 0.008)) * radius)
+
+
+def second_vehicle_xy(t: TruckDraw, s: SecondVehicleDraw) -> tuple[float, float]:
+    """The second vehicle's footprint centre in the truck frame (m): parked parallel on the truck's left, as truck_scene places it."""
+    return 0.1 * t.length_m, t.width_m / 2 + s.gap_m + s.width_m / 2
+
+
+def _clear_second_vehicle(f: FlightDraw, t: TruckDraw, s: SecondVehicleDraw | None) -> FlightDraw:
+    """The flight raised over the second vehicle when the orbit passes over its footprint (a drone does not fly through a
+    truck): at least 0.3 x H above its roof; the elevation follows (recorded; ``elevation_drawn_deg`` keeps the draw)."""
+    if s is None:
+        return f
+    yaw = math.radians(t.yaw_deg)
+    ox, oy = f.centre_offset_m
+    # Orbit centre in the truck frame; the footprint's nearest and farthest points from it.
+    cx, cy = math.cos(yaw) * ox + math.sin(yaw) * oy, -math.sin(yaw) * ox + math.cos(yaw) * oy
+    sx, sy = second_vehicle_xy(t, s)
+    hx, hy = s.length_m / 2, s.width_m / 2
+    near = math.hypot(max(abs(cx - sx) - hx, 0.0), max(abs(cy - sy) - hy, 0.0))
+    far = math.hypot(abs(cx - sx) + hx, abs(cy - sy) + hy)
+    margin = 0.1 * t.length_m
+    floor = s.height_m + 0.3 * t.height_m
+    if not (near - margin <= f.radius_m <= far + margin) or f.altitude_m >= floor:
+        return f
+    elev = math.degrees(math.atan2(floor - 0.5 * t.height_m, f.radius_m))
+    return replace(f, altitude_m=floor, elevation_deg=elev)
 
 
 def _sample_camera(rng: np.random.Generator) -> CameraDraw:
@@ -346,10 +373,12 @@ def sample_scene_spec(rng, *, max_frames: int | None = None, scale: str | None =
     rng = np.random.default_rng(rng)
     r_truck, r_panel, r_flight, r_camera, r_scene, r_render = rng.spawn(6)
     truck = _sample_truck(r_truck, scale)
+    scene = _sample_scene(r_scene, truck)
+    flight = _clear_second_vehicle(_sample_flight(r_flight, truck, max_frames), truck, scene.second)
     return RandomSceneSpec(seed=-1, index=-1, render_seed=int(r_render.integers(2**31 - 1)),
                            max_frames=None if max_frames is None else int(max_frames), resolution=resolution,
-                           truck=truck, panel=_sample_panel(r_panel, truck.height_m), flight=_sample_flight(r_flight, truck, max_frames),
-                           camera=_sample_camera(r_camera), scene=_sample_scene(r_scene, truck))
+                           truck=truck, panel=_sample_panel(r_panel, truck.height_m), flight=flight,
+                           camera=_sample_camera(r_camera), scene=scene)
 
 
 def draw_spec(seed: int, index: int, *, max_frames: int | None = None, scale: str | None = None, resolution: str = "HD720") -> RandomSceneSpec:
@@ -452,8 +481,9 @@ def build_draw(spec: RandomSceneSpec) -> DrawInputs:
     preset = Preset(name=spec.name, scale=t.scale, truck=truck, second_truck=second, second_gap_m=None if s.second is None else s.second.gap_m,
                     orbit=orbit, frames=f.frames, n_distractors=s.n_distractors, texel_m=texel, truck_yaw_deg=t.yaw_deg)
     yaw = math.radians(t.yaw_deg)
+    # Distractors stay well under the drone (poles would otherwise reach its altitude on low orbits).
     scene = truck_scene(truck, truck_yaw_rad=yaw, texel_m=texel, n_distractors=s.n_distractors, second_truck=second,
-                        second_offset_m=preset.second_gap_m, max_distractor_height_m=0.8 * t.height_m, rng=scene_rng)
+                        second_offset_m=preset.second_gap_m, max_distractor_height_m=min(0.8 * t.height_m, 0.7 * f.altitude_m), rng=scene_rng)
     _light_and_ground(scene, s)
     poses = orbit_poses(f.frames, f.centre_offset_m, orbit, rng=flight_rng)
     cfg = RenderConfig(noise_sigma_dn=c.noise_sigma_dn, shadows=True, blur_sigma_px=c.blur_sigma_px, right_gain=c.right_gain)

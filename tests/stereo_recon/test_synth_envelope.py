@@ -37,7 +37,8 @@ def _check_spec(s: env.RandomSceneSpec) -> None:
         assert 0 <= d[0] < d[1] <= 1 and 0 <= d[2] < d[3] <= 0.9 + 1e-12
     assert _inside(f.radius_over_length, env.RADIUS_OVER_LENGTH)
     assert f.radius_m >= env.MIN_RADIUS_M[t.scale] - 1e-12 and f.radius_m >= f.radius_over_length * t.length_m - 1e-12
-    assert _inside(f.elevation_deg, env.ELEVATION_DEG)
+    assert _inside(f.elevation_drawn_deg, env.ELEVATION_DEG)
+    assert f.elevation_drawn_deg - 1e-9 <= f.elevation_deg <= 60.0  # raised only over a second vehicle in the way
     # The elevation is the camera's, seen from the truck's centre at half height.
     assert math.degrees(math.atan2(f.altitude_m - 0.5 * t.height_m, f.radius_m)) == pytest.approx(f.elevation_deg)
     assert _inside(f.arc_deg, env.ARC_DEG) and _inside(f.frames_drawn, env.FRAMES)
@@ -73,6 +74,26 @@ def test_every_draw_lies_inside_the_envelope_and_covers_it():
     second = sum(s.scene.second is not None for s in specs)
     assert abs(second - n / 3) <= 4 * math.sqrt(n * 2 / 9)
     assert {s.scene.second.relation for s in specs if s.scene.second} == set(env.SECOND_RELATIONS)
+
+
+def test_orbits_fly_over_a_second_vehicle_never_through_it():
+    raised = 0
+    for i in range(300):
+        s = env.draw_spec(9, i)
+        sv, t, f = s.scene.second, s.truck, s.flight
+        if sv is None:
+            continue
+        raised += f.elevation_deg > f.elevation_drawn_deg
+        yaw = math.radians(t.yaw_deg)
+        a = np.linspace(0, 2 * np.pi, 720)
+        x = f.centre_offset_m[0] + f.radius_m * np.cos(a)
+        y = f.centre_offset_m[1] + f.radius_m * np.sin(a)
+        tx, ty = np.cos(yaw) * x + np.sin(yaw) * y, -np.sin(yaw) * x + np.cos(yaw) * y  # truck frame
+        sx, sy = env.second_vehicle_xy(t, sv)
+        over = (np.abs(tx - sx) <= sv.length_m / 2) & (np.abs(ty - sy) <= sv.width_m / 2)
+        if over.any():
+            assert f.altitude_m >= sv.height_m + 0.3 * t.height_m - 1e-9, s.name
+    assert raised > 0  # the case occurs in the envelope
 
 
 def test_a_draw_depends_only_on_seed_and_index():
