@@ -425,7 +425,7 @@ def envelope_markdown(meta: dict, summary: dict, rows: Sequence[dict]) -> str:
     from stereo_recon.synthetic.envelope import EVALUATION_SEED
 
     use = "evaluation seed" if meta["seed"] == EVALUATION_SEED else "TUNING seed (figures for tuning, not for reporting)"
-    head = "| dimensions | failed | mean abs | median | p90 | max | bias | truth in ±2σ |"
+    head = "| n (dimensions) | failed | mean abs | median | p90 | max | bias | truth in ±2σ |"
     lines = [f"# Operating-envelope benchmark: seed {meta['seed']} ({use}), {meta['count']} draws"
              + (f", frames capped at {meta['max_frames']}" if meta.get("max_frames") else ""), "",
              "Errors are relative to the truth, absolute unless 'bias'; a failed draw counts as a failure in every dimension.", "",
