@@ -477,30 +477,40 @@ def plot_envelope(path: Path, summary: dict, rows: Sequence[dict]) -> Path:
     nrow = max(1, -(-len(names) // ncol))
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.2 * nrow), dpi=100, squeeze=False)
     ok_errs = [abs(r["error_pct"][d]) for r in rows if r["ok"] for d in DIMS]
-    top = max(3.0, min(30.0, 1.15 * max(ok_errs, default=3.0)))
+    # Log scale: errors span 0.01 % to tens of %; the top band holds the failures.
+    top = max(5.0, min(200.0, 2.5 * max(ok_errs, default=5.0)))
+    floor = 0.01
     colours = {"length": "tab:blue", "width": "tab:orange", "height": "tab:green"}
     for ax, name in zip(axes.ravel(), names):
         levels = list(summary["by_factor"][name])
         for k, lv in enumerate(levels):
             sel = [r for r in rows if r["factors"][name] == lv]
             for j, d in enumerate(DIMS):
-                ys = [min(abs(r["error_pct"][d]), top) for r in sel if r["ok"]]
+                ys = [float(np.clip(abs(r["error_pct"][d]), floor, top)) for r in sel if r["ok"]]
                 ax.scatter(np.full(len(ys), k + (j - 1) * 0.18), ys, s=14, color=colours[d], label=d if k == 0 else None)
             nf = sum(not r["ok"] for r in sel)
             if nf:
-                ax.scatter([k], [top * 0.97], marker="x", color="red", s=40, label="failed" if k == 0 else None)
-                ax.annotate(str(nf), (k + 0.08, top * 0.9), color="red", fontsize=8)
+                ax.scatter([k], [top * 0.7], marker="x", color="red", s=40, label="failed")
+                ax.annotate(f"{nf} failed", (k + 0.08, top * 0.7), color="red", fontsize=8)
         ax.set_xticks(range(len(levels)))
         ax.set_xticklabels(levels, fontsize=8)
-        ax.set_ylim(0, top)
+        ax.set_xlim(-0.6, len(levels) - 0.4)
+        ax.set_yscale("log")
+        ax.set_ylim(floor, top)
         ax.set_title(name, fontsize=10)
         ax.axhline(1.0, color="grey", lw=0.6, ls="--")
         ax.grid(alpha=0.25)
     for ax in axes.ravel()[len(names):]:
         ax.axis("off")
     axes[0, 0].set_ylabel("|error| (%)")
-    axes[0, 0].legend(fontsize=7, loc="upper left")
-    fig.tight_layout()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    for ax in axes.ravel()[1:]:  # the first panel may have no failure: collect every label once
+        for h, lb in zip(*ax.get_legend_handles_labels()):
+            if lb not in labels:
+                handles.append(h)
+                labels.append(lb)
+    fig.legend(handles, labels, fontsize=8, loc="upper right")
+    fig.tight_layout(rect=(0.0, 0.0, 0.94, 1.0))  # room for the legend on the right
     fig.savefig(path)
     plt.close(fig)
     return path
