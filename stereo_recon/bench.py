@@ -265,3 +265,265 @@ def _plot_study(path: Path, result: dict) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+# ------------------------------------------------------------- random operating-envelope benchmark
+
+# Factor splits of the envelope table: name -> (label, function of a draw's spec -> level).
+RADIUS_BINS = ((0.75, 1.0), (1.0, 1.5), (1.5, 2.0001))
+ELEVATION_BINS = ((15.0, 25.0), (25.0, 35.0), (35.0, 50.0001))
+
+
+def _bin(value: float, bins) -> str:
+    for lo, hi in bins:
+        if lo <= value < hi:
+            return f"{lo:g}-{min(hi, round(hi, 2)):g}"
+    return "out of range"
+
+
+def envelope_factors(spec) -> dict[str, str]:
+    """The levels of one draw for the factor splits (texture, radius/L, elevation, scale, kind, second vehicle, lens, codec)."""
+    return {
+        "texture": spec.panel.texture_class,
+        "radius/L": _bin(spec.flight.radius_over_length, RADIUS_BINS),
+        "elevation (deg)": _bin(spec.flight.elevation_deg, ELEVATION_BINS),
+        "scale": spec.truck.scale,
+        "kind": spec.truck.kind,
+        "second vehicle": "yes" if spec.scene.second is not None else "no",
+        "lens": spec.camera.lens_family,
+        "codec": spec.camera.codec,
+    }
+
+
+def bench_random_one(seed: int, index: int, draws_dir: str, runs_dir: str, max_frames: int | None, scale: str | None,
+                     resolution: str) -> dict:
+    """Render (or reuse) draw ``index`` of ``seed`` and run the full pipeline on it with default settings (as ``run``)."""
+    from stereo_recon.pipeline import RunConfig, run_video
+    from stereo_recon.synthetic.envelope import draw_dir, draw_spec, load_draw_spec, render_draw
+
+    t0 = time.perf_counter()
+    scene = draw_dir(draws_dir, index)
+    spec = draw_spec(seed, index, max_frames=max_frames, scale=scale, resolution=resolution)
+    existing = load_draw_spec(scene)
+    if existing is None:
+        render_draw(spec, scene)
+    elif existing != spec:
+        raise ConfigError(f"{scene}: holds another draw (its truth.json's random_spec differs); choose another --out")
+    render_s = time.perf_counter() - t0
+    video, calib, _ = _scene_files(scene)
+    summary = run_video(video, calib, runs_dir, RunConfig(resume=True, quiet=True))
+    mpath = Path(runs_dir) / "measurement.json"
+    measurement = json.loads(mpath.read_text()) if mpath.is_file() else {}
+    return {**summary, "data_quality": measurement.get("data_quality"), "render_time_s": render_s}
+
+
+def _failure_reason(result: dict) -> str | None:
+    """Why a draw's run counts as a failure (None: it measured all three dimensions without refusing)."""
+    if not result.get("ok"):
+        return str(result.get("error") or "failed")
+    dq = result.get("data_quality") or {}
+    if dq and dq.get("ok") is False:
+        fails = [f"{c.get('name')}: {c.get('detail')}" for c in dq.get("checks", []) if c.get("status") == "fail"]
+        return "refused (data quality): " + ("; ".join(fails) or "failed checks")
+    missing = [d for d in DIMS if not isinstance(result.get(f"{d}_m"), (int, float)) or not np.isfinite(result[f"{d}_m"])]
+    if missing:
+        return f"not measured: {', '.join(missing)}"
+    dims = ((result.get("verdict") or {}).get("dimensions") or {}) if isinstance(result.get("verdict"), dict) else {}
+    unmeasured = [d for d, e in dims.items() if isinstance(e, dict) and e.get("verdict") == "not-measured"]
+    if unmeasured:
+        return f"not measured: {', '.join(unmeasured)}"
+    return None
+
+
+def envelope_row(result: dict, spec, truth: dict | None = None) -> dict:
+    """One draw's row of envelope.json: spec summary, truth, measured, sigma, signed error (%), coverage, verdict, failure."""
+    t = spec.truck
+    true = {d: float(getattr(t, f"{d}_m")) for d in DIMS}
+    reason = _failure_reason(result)
+    row = {
+        "draw": spec.index, "name": spec.name, "ok": reason is None, "failure_reason": reason,
+        "spec": {"scale": t.scale, "kind": t.kind, "length_m": t.length_m, "texture_class": spec.panel.texture_class,
+                 "texture_strength": spec.panel.panel.texture_strength, "body_paint": t.body_paint,
+                 "radius_over_length": spec.flight.radius_over_length, "radius_m": spec.flight.radius_m,
+                 "elevation_deg": spec.flight.elevation_deg, "arc_deg": spec.flight.arc_deg, "frames": spec.flight.frames,
+                 "lens_family": spec.camera.lens_family, "codec": spec.camera.codec, "noise_sigma_dn": spec.camera.noise_sigma_dn,
+                 "blur_sigma_px": spec.camera.blur_sigma_px, "sun_elevation_deg": spec.scene.sun_elevation_deg,
+                 "ground_class": spec.scene.ground_class, "second_vehicle": None if spec.scene.second is None else spec.scene.second.relation},
+        "factors": envelope_factors(spec), "truth_m": true,
+        "measured_m": None, "sigma_m": None, "error_pct": None, "within_2sigma": None,
+        "verdict": None, "expected_verdict": None, "verdict_right": None,
+        "time_s": result.get("time_s"), "run_dir": result.get("out_dir"),
+    }
+    if t.scale == "full":
+        row["expected_verdict"] = ((truth or {}).get("over_limit_expectation") or {}).get("verdict") or _expected_verdict(t)
+    if reason is not None:
+        row["verdict_right"] = False if t.scale == "full" else None
+        return row
+    meas = {d: float(result[f"{d}_m"]) for d in DIMS}
+    sig = {d: (result.get("uncertainty_m") or {}).get(d) for d in DIMS}
+    row.update(measured_m=meas, sigma_m=sig,
+               error_pct={d: 100.0 * (meas[d] - true[d]) / true[d] for d in DIMS},
+               within_2sigma={d: sig[d] is not None and abs(meas[d] - true[d]) <= 2.0 * sig[d] for d in DIMS})
+    v = result.get("verdict")
+    row["verdict"] = v.get("overall") if isinstance(v, dict) else v
+    if t.scale == "full":
+        row["verdict_right"] = bool(verdict_matches(row["expected_verdict"], v, true))
+    return row
+
+
+def _expected_verdict(t) -> str:
+    from stereo_recon.synthetic.presets import CN_2016_62_LIMITS_M
+
+    over = any(getattr(t, k) > lim for k, lim in CN_2016_62_LIMITS_M.items())
+    return "over-limit" if over else "within-limits"
+
+
+def _stats(rows: Sequence[dict], dims: Sequence[str]) -> dict:
+    """Failure rate and error statistics (%, absolute relative error) over ``dims`` of ``rows`` pooled."""
+    n = len(rows) * len(dims)
+    errs = [r["error_pct"][d] for r in rows if r["ok"] for d in dims]
+    cover = [r["within_2sigma"][d] for r in rows if r["ok"] for d in dims]
+    failed = sum(len(dims) for r in rows if not r["ok"])
+    a = np.abs(errs)
+    out = {"n": n, "failed": failed, "failure_rate": failed / n if n else None}
+    if len(errs):
+        out.update(mean_abs_pct=float(a.mean()), median_abs_pct=float(np.median(a)), p90_abs_pct=float(np.percentile(a, 90)),
+                   max_abs_pct=float(a.max()), bias_pct=float(np.mean(errs)), within_2sigma=float(np.mean(cover)))
+    else:
+        out.update(mean_abs_pct=None, median_abs_pct=None, p90_abs_pct=None, max_abs_pct=None, bias_pct=None, within_2sigma=None)
+    return out
+
+
+def envelope_summary(rows: Sequence[dict]) -> dict:
+    """Per dimension and overall statistics, the full-scale verdicts, and the same split by factor."""
+    per_dim = {d: _stats(rows, (d,)) for d in DIMS}
+    per_dim["overall"] = _stats(rows, DIMS)
+    full = [r for r in rows if r["spec"]["scale"] == "full"]
+    verdicts = {"n_full_scale": len(full), "right": sum(bool(r["verdict_right"]) for r in full),
+                "wrong": [r["name"] for r in full if r["ok"] and not r["verdict_right"]],
+                "failed": [r["name"] for r in full if not r["ok"]]}
+    factors: dict[str, dict] = {}
+    for name in (rows[0]["factors"] if rows else {}):
+        levels = sorted({r["factors"][name] for r in rows})
+        factors[name] = {lv: _stats([r for r in rows if r["factors"][name] == lv], DIMS) for lv in levels}
+    return {"draws": len(rows), "failed_draws": sum(not r["ok"] for r in rows), "dimensions": per_dim, "verdicts": verdicts,
+            "by_factor": factors}
+
+
+def _pct(v, digits: int = 2) -> str:
+    return "–" if v is None else f"{v:.{digits}f}%"
+
+
+def _stats_cells(s: dict) -> str:
+    cover = "–" if s["within_2sigma"] is None else f"{100 * s['within_2sigma']:.0f}%"
+    return (f"{s['n']} | {s['failed']} ({100 * s['failure_rate']:.0f}%) | {_pct(s['mean_abs_pct'])} | {_pct(s['median_abs_pct'])} | "
+            f"{_pct(s['p90_abs_pct'])} | {_pct(s['max_abs_pct'])} | {_pct(s['bias_pct'])} | {cover}")
+
+
+def envelope_markdown(meta: dict, summary: dict, rows: Sequence[dict]) -> str:
+    """envelope.md: overall and per-dimension figures, verdicts, the split by factor, failures and every draw."""
+    from stereo_recon.synthetic.envelope import EVALUATION_SEED
+
+    use = "evaluation seed" if meta["seed"] == EVALUATION_SEED else "TUNING seed (figures for tuning, not for reporting)"
+    head = "| n (dimensions) | failed | mean abs | median | p90 | max | bias | truth in ±2σ |"
+    lines = [f"# Operating-envelope benchmark: seed {meta['seed']} ({use}), {meta['count']} draws"
+             + (f", frames capped at {meta['max_frames']}" if meta.get("max_frames") else ""), "",
+             "Errors are relative to the truth, absolute unless 'bias'; a failed draw counts as a failure in every dimension.", "",
+             "| dimension | " + head[2:], "|---" * 9 + "|"]
+    for d, s in summary["dimensions"].items():
+        lines.append(f"| {d} | {_stats_cells(s)} |")
+    v = summary["verdicts"]
+    lines += ["", f"Full-scale verdicts (cn-2016-62): {v['right']} of {v['n_full_scale']} right"
+              + (f"; wrong: {', '.join(v['wrong'])}" if v["wrong"] else "") + (f"; failed: {', '.join(v['failed'])}" if v["failed"] else ""), "",
+              "## By factor", "", "| factor | level | " + head[2:], "|---" * 10 + "|"]
+    for name, levels in summary["by_factor"].items():
+        for lv, s in levels.items():
+            lines.append(f"| {name} | {lv} | {_stats_cells(s)} |")
+    failed = [r for r in rows if not r["ok"]]
+    if failed:
+        lines += ["", "## Failures", "", "| draw | scale | kind | texture | r/L | elevation | reason |", "|---|---|---|---|---|---|---|"]
+        for r in failed:
+            s = r["spec"]
+            lines.append(f"| {r['name']} | {s['scale']} | {s['kind']} | {s['texture_class']} | {s['radius_over_length']:.2f} | "
+                         f"{s['elevation_deg']:.0f}° | {r['failure_reason']} |")
+    lines += ["", "## Draws", "", "| draw | scale | kind | texture | r/L | elev | frames | L err | W err | H err | in ±2σ | verdict (expected) |",
+              "|---" * 12 + "|"]
+    for r in rows:
+        s = r["spec"]
+        e = r["error_pct"] or {}
+        cov = "–" if r["within_2sigma"] is None else "".join("✓" if r["within_2sigma"][d] else "✗" for d in DIMS)
+        verdict = "failed" if not r["ok"] else (r["verdict"] or "–")
+        if r["expected_verdict"]:
+            verdict += f" ({r['expected_verdict']}: {'right' if r['verdict_right'] else 'WRONG'})"
+        lines.append(f"| {r['name']} | {s['scale']} | {s['kind']} | {s['texture_class']} | {s['radius_over_length']:.2f} | "
+                     f"{s['elevation_deg']:.0f}° | {s['frames']} | {_signed(e.get('length'))} | {_signed(e.get('width'))} | "
+                     f"{_signed(e.get('height'))} | {cov} | {verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+def _signed(v) -> str:
+    return "–" if v is None else f"{v:+.2f}%"
+
+
+def plot_envelope(path: Path, summary: dict, rows: Sequence[dict]) -> Path:
+    """envelope.png: per factor, every draw's absolute error per dimension by level (failures as red crosses at the top)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(summary["by_factor"])
+    ncol = 4
+    nrow = max(1, -(-len(names) // ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.2 * nrow), dpi=100, squeeze=False)
+    ok_errs = [abs(r["error_pct"][d]) for r in rows if r["ok"] for d in DIMS]
+    # Log scale: errors span 0.01 % to tens of %; the top band holds the failures.
+    top = max(5.0, min(200.0, 2.5 * max(ok_errs, default=5.0)))
+    floor = 0.01
+    colours = {"length": "tab:blue", "width": "tab:orange", "height": "tab:green"}
+    for ax, name in zip(axes.ravel(), names):
+        levels = list(summary["by_factor"][name])
+        for k, lv in enumerate(levels):
+            sel = [r for r in rows if r["factors"][name] == lv]
+            for j, d in enumerate(DIMS):
+                ys = [float(np.clip(abs(r["error_pct"][d]), floor, top)) for r in sel if r["ok"]]
+                ax.scatter(np.full(len(ys), k + (j - 1) * 0.18), ys, s=14, color=colours[d], label=d if k == 0 else None)
+            nf = sum(not r["ok"] for r in sel)
+            if nf:
+                ax.scatter([k], [top * 0.7], marker="x", color="red", s=40, label="failed")
+                ax.annotate(f"{nf} failed", (k + 0.08, top * 0.7), color="red", fontsize=8)
+        ax.set_xticks(range(len(levels)))
+        ax.set_xticklabels(levels, fontsize=8)
+        ax.set_xlim(-0.6, len(levels) - 0.4)
+        ax.set_yscale("log")
+        ax.set_ylim(floor, top)
+        ax.set_title(name, fontsize=10)
+        ax.axhline(1.0, color="grey", lw=0.6, ls="--")
+        ax.grid(alpha=0.25)
+    for ax in axes.ravel()[len(names):]:
+        ax.axis("off")
+    axes[0, 0].set_ylabel("|error| (%)")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    for ax in axes.ravel()[1:]:  # the first panel may have no failure: collect every label once
+        for h, lb in zip(*ax.get_legend_handles_labels()):
+            if lb not in labels:
+                handles.append(h)
+                labels.append(lb)
+    fig.legend(handles, labels, fontsize=8, loc="upper right")
+    fig.tight_layout(rect=(0.0, 0.0, 0.94, 1.0))  # room for the legend on the right
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def write_envelope(out_dir: Path, meta: dict, rows: Sequence[dict]) -> dict:
+    """Write envelope.json (per-draw rows and the summary), envelope.md and envelope.png into ``out_dir``; returns the summary."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary = envelope_summary(rows)
+    write_json_atomic(out_dir / "envelope.json", {**meta, "summary": summary, "draws": list(rows)})
+    tmp = out_dir / "envelope.md.tmp"
+    tmp.write_text(envelope_markdown(meta, summary, rows))
+    tmp.replace(out_dir / "envelope.md")
+    plot_envelope(out_dir / "envelope.png", summary, rows)
+    return summary

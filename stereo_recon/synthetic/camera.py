@@ -28,6 +28,13 @@ _LEFT_HD = (528.47, 528.30, 6.15, 2.52, -0.0412, 0.0098, -0.00021, 0.00034, -0.0
 _RIGHT_HD = (527.92, 527.81, 1.87, -1.23, -0.0405, 0.0093, 0.00018, -0.00027, -0.0018)
 # Stereo: baseline mm, TY mm, TZ mm, RX (tilt), CV (convergence, about y), RZ (roll) rad.
 _STEREO = {"baseline_mm": 119.93, "ty_mm": 0.042, "tz_mm": -0.31, "rx_rad": 0.0012, "cv_rad": 0.0021, "rz_rad": -0.00043}
+# The two ZED lens families at HD720 (same layout as _LEFT_HD): the first-generation ZED / ZED Mini
+# (narrower field, strong barrel distortion, k1 ~ -0.17) and the ZED2 / ZED2i (wider, k1 ~ -0.04).
+LENS_FAMILIES: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
+    "zed": ((699.8, 699.6, 3.1, -1.9, -0.1712, 0.0260, 0.00012, -0.00035, 0.0),
+            (700.3, 700.1, -2.4, 1.1, -0.1695, 0.0252, -0.00020, 0.00022, 0.0)),
+    "zed2": (_LEFT_HD, _RIGHT_HD),
+}
 
 
 def resolution_size(name: str) -> tuple[int, int]:
@@ -57,18 +64,27 @@ def zed2_rig(resolution: str = "HD720", rectified: bool = False):
     an SVO export contains (left intrinsics' focal length, centred principal point, D = 0, R = I,
     T = [-B, 0, 0]).
     """
+    return stereo_rig(resolution, rectified, _LEFT_HD, _RIGHT_HD, _STEREO)
+
+
+def stereo_rig(resolution: str, rectified: bool, left_hd, right_hd, stereo: dict):
+    """A ZED-like rig from HD720 factory-style values, as :func:`zed2_rig` builds its own.
+
+    left_hd / right_hd: (fx, fy, cx offset from the image centre, cy offset, k1, k2, p1, p2, k3) at HD720 (px);
+    stereo: baseline_mm, ty_mm, tz_mm, rx_rad, cv_rad, rz_rad (the .conf's [STEREO] values).
+    """
     from calib.rig import StereoRig
 
     res = {v: k for k, v in RESOLUTIONS.items()}[resolution_size(resolution)]
     size = RESOLUTIONS[res]
-    K1, D1 = _intrinsics(_LEFT_HD, res)
-    K2, D2 = _intrinsics(_RIGHT_HD, res)
-    B = _STEREO["baseline_mm"] / 1000.0
+    K1, D1 = _intrinsics(tuple(left_hd), res)
+    K2, D2 = _intrinsics(tuple(right_hd), res)
+    B = stereo["baseline_mm"] / 1000.0
     meta = {"source": "stereo_recon.synthetic (ZED2-like, fictitious factory calibration)", "serial": SYNTH_SERIAL, "resolution": res}
     if rectified:
         return StereoRig.from_rectified(float(K1[0, 0]), float(K1[0, 0]), (size[0] - 1) / 2, (size[1] - 1) / 2, B, size, **meta)
-    R, _ = cv2.Rodrigues(np.array([_STEREO["rx_rad"], _STEREO["cv_rad"], _STEREO["rz_rad"]], float))
-    T = np.array([-B, _STEREO["ty_mm"] / 1000.0, _STEREO["tz_mm"] / 1000.0])
+    R, _ = cv2.Rodrigues(np.array([stereo["rx_rad"], stereo["cv_rad"], stereo["rz_rad"]], float))
+    T = np.array([-B, stereo["ty_mm"] / 1000.0, stereo["tz_mm"] / 1000.0])
     return StereoRig(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=size, rectified=False, metadata=meta)
 
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from stereo_recon.synthetic.seeds import EVALUATION_SEED
+
+RANDOM_SEEDS_HELP = f"0-99 are for tuning, {EVALUATION_SEED} (EVALUATION_SEED) for reported figures"
 PRESET_HELP = ("model-truck (2.1 x 0.38 x 0.38 m, the paper's scale), full-truck (12 x 2.55 x 4.0 m), over-height (4.3 m tall), "
                "two-vehicles, calibration-board (chessboard video), table2:N (N = 1..20, the paper's Table 2 trucks)")
 
@@ -15,9 +18,17 @@ def register(subparsers) -> None:
                     "calibration (SN<serial>.conf, rig.yaml), ground-truth poses (poses_gt.txt) and truth.json. "
                     "World frame: metres, z up, ground z = 0; poses are world-from-left-camera (OpenCV axes).",
     )
-    p.add_argument("--preset", required=True, metavar="NAME", help=PRESET_HELP)
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("--preset", metavar="NAME", help=PRESET_HELP)
+    which.add_argument("--random", type=int, metavar="K", default=None,
+                       help="K random scenes of the operating envelope into DIR/draw_000 ... (draw i of seed S is the same whatever K; "
+                            f"seeds {RANDOM_SEEDS_HELP})")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (written atomically)")
     p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same bytes (default 0)")
+    p.add_argument("--max-frames", type=int, default=None, metavar="N",
+                   help="with --random: cap each draw's 60-200 frames at N for a quick run (recorded in the draw's spec)")
+    p.add_argument("--scale-only", choices=("model", "full"), default=None,
+                   help="with --random: only model-scale or only full-scale trucks (the other factors are drawn as usual)")
     p.add_argument("--frames", type=int, default=None, help="number of stereo frames (default: the preset's)")
     p.add_argument("--rectified", action="store_true", help="render ideal rectified pinhole pairs (like an SVO export) instead of raw distorted eyes")
     p.add_argument("--resolution", default="HD720", metavar="RES", help="ZED resolution: HD720 (default), FHD, 2K or VGA")
@@ -32,8 +43,36 @@ def register(subparsers) -> None:
     p.set_defaults(func=_run)
 
 
+# Options that shape a preset's rendering; a random draw takes all of them from its spec.
+_PRESET_ONLY = (("frames", None), ("rectified", False), ("depth", False), ("video_format", "avi"), ("flight", "orbit"), ("arc", None),
+                ("quality", 90), ("noise", 1.5), ("blur", 0.0), ("no_shadows", False))
+
+
+def _run_random(args) -> int:
+    from stereo_recon.errors import ConfigError
+    from stereo_recon.synthetic.envelope import render_random
+
+    given = [n for n, default in _PRESET_ONLY if getattr(args, n) != default]
+    if given:
+        raise ConfigError(f"--random: {', '.join('--' + n.replace('_', '-') for n in given)} apply to --preset only (a draw's spec sets them)")
+    if args.seed < 0:
+        raise ConfigError(f"--seed: must be >= 0, got {args.seed}")
+    truths = render_random(args.random, args.seed, args.out, max_frames=args.max_frames, scale=args.scale_only, resolution=args.resolution)
+    for i, t in enumerate(truths):
+        sp = t["random_spec"]
+        print(f"{args.out}/draw_{i:03d}: {t['frames']} frames, {sp['truck']['scale']} {sp['truck']['kind']} {t['length_m']:.3f} x "
+              f"{t['width_m']:.3f} x {t['height_m']:.3f} m, {sp['panel']['texture_class']} paint, radius {sp['flight']['radius_over_length']:.2f} L, "
+              f"elevation {sp['flight']['elevation_deg']:.0f} deg, expected verdict {t['over_limit_expectation']['verdict']}")
+    return 0
+
+
 def _run(args) -> int:
     from stereo_recon.errors import ConfigError
+
+    if args.random is not None:
+        return _run_random(args)
+    if args.max_frames is not None or args.scale_only is not None:
+        raise ConfigError("--max-frames and --scale-only apply to --random only (use --frames with a preset)")
     from stereo_recon.synthetic.render import RenderConfig
     from stereo_recon.synthetic.sequence import render_sequence
 

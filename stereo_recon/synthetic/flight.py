@@ -40,6 +40,8 @@ class OrbitConfig:
     jitter_deg: gimbal jitter (std, smoothed over ~3 frames) of yaw/pitch/roll.
     position_jitter_m: std of the drone's position wobble.
     fps: frame rate (TUM timestamps = index / fps).
+    shake_deg: high-frequency shake (std, smoothed over ~1 frame) on top of the jitter: propeller
+        vibration the gimbal does not absorb (0 = none).
     """
 
     radius_m: float = 1.7
@@ -50,6 +52,7 @@ class OrbitConfig:
     jitter_deg: float = 0.6
     position_jitter_m: float = 0.01
     fps: float = 15.0
+    shake_deg: float = 0.0
 
 
 def _smooth_noise(rng: np.random.Generator, n: int, dims: int, sigma: float, smooth_frames: float = 3.0) -> np.ndarray:
@@ -69,6 +72,8 @@ def orbit_poses(frames: int, centre_xy, config: OrbitConfig = OrbitConfig(), rng
     ang = np.deg2rad(c.start_deg + c.arc_deg * np.arange(frames) / steps)
     jit = _smooth_noise(rng, frames, 3, np.deg2rad(c.jitter_deg))
     pj = _smooth_noise(rng, frames, 3, c.position_jitter_m)
+    if c.shake_deg > 0:  # drawn after the jitter: orbits without shake keep their poses
+        jit = jit + _smooth_noise(rng, frames, 3, np.deg2rad(c.shake_deg), smooth_frames=0.7)
     target = np.array([centre_xy[0], centre_xy[1], c.look_height_m])
     out = np.empty((frames, 4, 4))
     for i, a in enumerate(ang):

@@ -81,6 +81,28 @@ def prism_y(profile_xz: np.ndarray, y0: float, y1: float, material: str, cap_mat
     return Mesh(v, np.array(tris, np.int32), mats)
 
 
+def prism_x(profile_yz: np.ndarray, x0: float, x1: float, material: str, cap_material: str | None = None) -> Mesh:
+    """Extrude a convex polygon in the y-z plane along x from ``x0`` to ``x1`` (a tank's cross-section).
+
+    profile_yz: (K, 2) convex polygon vertices in order, metres.
+    """
+    p = np.asarray(profile_yz, float)
+    m = prism_y(p, x0, x1, material, cap_material)  # built with (x, y, z) = (y', x', z'): swap the first two axes
+    m.vertices = m.vertices[:, [1, 0, 2]]
+    return m
+
+
+def elliptic_cylinder_x(centre_yz, half_width_m: float, half_height_m: float, x0: float, x1: float, material: str,
+                        cap_material: str | None = None, segments: int = 24) -> Mesh:
+    """Elliptic cylinder with axis along x; ``segments`` is a multiple of 4 so that vertices sit exactly at the
+    four extremes (y = centre +- half_width_m, z = centre +- half_height_m): the mesh's bounds are the ellipse's."""
+    if segments % 4:
+        raise ValueError(f"elliptic_cylinder_x: segments must be a multiple of 4, got {segments}")
+    ang = 2 * np.pi * np.arange(segments) / segments
+    prof = np.c_[centre_yz[0] + half_width_m * np.cos(ang), centre_yz[1] + half_height_m * np.sin(ang)]
+    return prism_x(prof, x0, x1, material, cap_material)
+
+
 def cylinder_y(centre_xz, radius: float, y0: float, y1: float, material: str, cap_material: str | None = None, segments: int = 16) -> Mesh:
     """Cylinder with axis along y; a vertex sits exactly at the lowest point (z = centre - radius)."""
     ang = -np.pi / 2 + 2 * np.pi * np.arange(segments) / segments

@@ -183,6 +183,8 @@ def _to_bgr(m):
     for k in ("paint_rgb", "band_rgb", "black_rgb"):
         if k in pr:
             pr[k] = tuple(pr[k])[::-1]
+    if "decals" in pr:
+        pr["decals"] = tuple((*d[:4], tuple(d[4])[::-1]) for d in pr["decals"])
     return replace(m, albedo_rgb=tuple(m.albedo_rgb)[::-1], params=pr)
 
 

@@ -141,6 +141,36 @@ def _board_poses(preset: Preset, rig, T_wc: np.ndarray, frames: int, rng: np.ran
     return out
 
 
+def truck_truth(p: Preset, scene: Scene, yaw_rad: float) -> dict:
+    """truth.json's truck entries: dimensions, the truck's pose and corners, the second vehicle, the over-limit expectation."""
+    spec = p.truck
+    T_wt = scene.info["truck_T_world"]
+    return dict(kind="truck", length_m=spec.length_m, width_m=spec.width_m, height_m=spec.height_m,
+                truck={**asdict(spec), "T_world_truck": T_wt, "yaw_deg": float(np.rad2deg(yaw_rad)),
+                       "frame": "origin on the ground at the footprint centre; x to the front, y left, z up; "
+                                "the truck spans x in [-L/2, L/2], y in [-W/2, W/2], z in [0, H]"},
+                truck_corners_world_m=_box_corners(T_wt, spec.length_m, spec.width_m, spec.height_m),
+                second_vehicle=scene.info.get("second_truck"),
+                over_limit_expectation=over_limit_expectation(p))
+
+
+def setting_truth(rig, scene: Scene, orbit, flight_type: str, texel_m: float | None, cfg: RenderConfig, exposure_jitter: float,
+                  jpeg_quality: int, video_format: str) -> dict:
+    """truth.json's frames, camera, flight, scene and rendering entries."""
+    return {
+        "world_frame": "metres, right-handed, z up, ground plane z = 0",
+        "ground_plane": {"normal": [0.0, 0.0, 1.0], "offset_m": 0.0},
+        "camera": {"model": "ZED2-like (synthetic)", "serial": SYNTH_SERIAL, "resolution": rig.metadata.get("resolution"),
+                   "image_size": list(rig.image_size), "rectified": bool(rig.rectified), "baseline_m": rig.baseline_m,
+                   "K_left": rig.K1, "D_left": rig.D1, "pose_convention": "poses_gt.txt: TUM, world-from-LEFT-camera, OpenCV axes"},
+        "flight": {"type": flight_type, **asdict(orbit)},
+        "scene": {"texel_m": scene.info.get("texel_m", texel_m), "sun_dir": scene.sun_dir, "ambient": scene.ambient, "sun": scene.sun,
+                  "distractors": scene.info.get("distractors", []), "n_triangles": int(len(scene.mesh.triangles))},
+        "render": {**asdict(cfg), "exposure_jitter": exposure_jitter, "jpeg_quality": int(jpeg_quality), "video_format": video_format,
+                   "renderer": "open3d RaycastingScene, per-pixel rays through the distortion (exact), Lambert + ambient + sun shadows"},
+    }
+
+
 def render_sequence(preset: str, out_dir, seed: int = 0, frames: int | None = None, rectified: bool = False, resolution: str = "HD720",
                     depth: bool = False, video_format: str = "avi", flight: str = "orbit", jpeg_quality: int = 90,
                     render_config: RenderConfig | None = None, exposure_jitter: float = 0.03, arc_deg: float | None = None) -> dict:
@@ -199,26 +229,39 @@ def render_sequence(preset: str, out_dir, seed: int = 0, frames: int | None = No
                 pc = PassConfig(offset_m=orbit.radius_m, altitude_m=orbit.altitude_m, extent_m=0.75 * spec.length_m,
                                 look_height_m=orbit.look_height_m, jitter_deg=orbit.jitter_deg, position_jitter_m=orbit.position_jitter_m, fps=fps)
                 poses = pass_poses(n, T_wt, pc, rng=flight_rng)
-            truth.update(kind="truck", length_m=spec.length_m, width_m=spec.width_m, height_m=spec.height_m,
-                         truck={**asdict(spec), "T_world_truck": T_wt, "yaw_deg": float(np.rad2deg(yaw)),
-                                "frame": "origin on the ground at the footprint centre; x to the front, y left, z up; "
-                                         "the truck spans x in [-L/2, L/2], y in [-W/2, W/2], z in [0, H]"},
-                         truck_corners_world_m=_box_corners(T_wt, spec.length_m, spec.width_m, spec.height_m),
-                         second_vehicle=scene.info.get("second_truck"),
-                         over_limit_expectation=over_limit_expectation(p))
+            truth.update(truck_truth(p, scene, yaw))
             truth.update({k: v for k, v in p.extra.items()})
-    truth["world_frame"] = "metres, right-handed, z up, ground plane z = 0"
-    truth["ground_plane"] = {"normal": [0.0, 0.0, 1.0], "offset_m": 0.0}
-    truth["camera"] = {"model": "ZED2-like (synthetic)", "serial": SYNTH_SERIAL, "resolution": rig.metadata.get("resolution"),
-                       "image_size": list(rig.image_size), "rectified": bool(rectified), "baseline_m": rig.baseline_m,
-                       "K_left": rig.K1, "D_left": rig.D1, "pose_convention": "poses_gt.txt: TUM, world-from-LEFT-camera, OpenCV axes"}
-    truth["flight"] = {"type": "static" if p.kind == "calibration-board" else flight, **asdict(orbit)}
-    truth["scene"] = {"texel_m": scene.info.get("texel_m", p.texel_m), "sun_dir": scene.sun_dir, "ambient": scene.ambient, "sun": scene.sun,
-                      "distractors": scene.info.get("distractors", []), "n_triangles": int(len(scene.mesh.triangles))}
-    truth["render"] = {**asdict(cfg), "exposure_jitter": exposure_jitter, "jpeg_quality": int(jpeg_quality), "video_format": video_format,
-                       "renderer": "open3d RaycastingScene, per-pixel rays through the distortion (exact), Lambert + ambient + sun shadows"}
-    renderer = StereoRenderer(scene, rig, cfg, noise_seed=noise_seed)
+    truth.update(setting_truth(rig, scene, orbit, "static" if p.kind == "calibration-board" else flight, p.texel_m, cfg,
+                               exposure_jitter, jpeg_quality, video_format))
     expo = _exposure_drift(expo_rng, n, exposure_jitter)
+    board_scene = None
+    if p.kind == "calibration-board":
+        board_scene = lambda i: _board_scene(p, truth["board_poses_T_world_board"][i])[0] if i > 0 else None  # noqa: E731
+    params = {"preset": p.name, "seed": int(seed), "frames": n, "rectified": bool(rectified), "resolution": resolution,
+              "depth": bool(depth), "video_format": video_format, "flight": flight, "jpeg_quality": int(jpeg_quality),
+              "exposure_jitter": exposure_jitter, "arc_deg": arc_deg, "render": asdict(cfg)}
+    write_sequence(out_dir, scene, rig, poses, truth, cfg, fps=fps, noise_seed=noise_seed, noise_rng=noise_rng, exposure=expo,
+                   video_format=video_format, jpeg_quality=jpeg_quality, depth=depth, run_params=params, seed=int(seed),
+                   stopwatch=sw, scene_for_frame=board_scene)
+    log.info("synthetic sequence %s: %d frames in %.1f s -> %s", p.name, n, sum(sw.timings_s.values()), out_dir)
+    return to_jsonable(truth)
+
+
+def write_sequence(out_dir, scene: Scene, rig, poses: np.ndarray, truth: dict, cfg: RenderConfig, *, fps: float, noise_seed: int,
+                   noise_rng: np.random.Generator, exposure: np.ndarray, video_format: str, jpeg_quality: int, depth: bool,
+                   run_params: dict, seed: int, stopwatch: Stopwatch | None = None, scene_for_frame=None) -> Path:
+    """Render ``poses`` (N, 4, 4 world-from-left) of ``scene`` through ``rig`` into ``out_dir`` (the layout in the module docstring).
+
+    truth: the scene's truth dict (written as truth.json with the file names added); exposure: (N,) per-frame gain;
+    noise_seed / noise_rng: the sensor noise buffer's seed and the per-frame offsets' generator; run_params: what
+    synth_run.json records; scene_for_frame: i -> a Scene to switch to before frame i, or None (a moving board).
+    Written atomically (a staged folder); an unwritable folder is a one-line ConfigError.
+    """
+    sw = stopwatch or Stopwatch()
+    n = len(poses)
+    rectified = bool(rig.rectified)
+    renderer = StereoRenderer(scene, rig, cfg, noise_seed=noise_seed)
+    expo = np.asarray(exposure, float)
     w, h = rig.image_size
     out_dir = Path(out_dir)
     try:
@@ -241,8 +284,8 @@ def render_sequence(preset: str, out_dir, seed: int = 0, frames: int | None = No
             pending = None
             try:
                 for i in range(n):
-                    if p.kind == "calibration-board" and i > 0:
-                        scene_i, _ = _board_scene(p, truth["board_poses_T_world_board"][i])
+                    scene_i = scene_for_frame(i) if scene_for_frame is not None else None
+                    if scene_i is not None:
                         renderer.set_scene(scene_i)
                     with sw.stage("render"):
                         pair = renderer.render(poses[i], rng=noise_rng, exposure=float(expo[i]))
@@ -281,12 +324,7 @@ def render_sequence(preset: str, out_dir, seed: int = 0, frames: int | None = No
                 # truth.json holds only seed-determined content (same seed, same bytes); timings and
                 # versions go to synth_run.json.
                 write_json_atomic(tmp / "truth.json", truth)
-                write_json_atomic(tmp / "synth_run.json", run_manifest(
-                    "synth", {}, {"preset": p.name, "seed": int(seed), "frames": n, "rectified": bool(rectified), "resolution": resolution,
-                                  "depth": bool(depth), "video_format": video_format, "flight": flight, "jpeg_quality": int(jpeg_quality),
-                                  "exposure_jitter": exposure_jitter, "arc_deg": arc_deg, "render": asdict(cfg)},
-                    dict(sw.timings_s), seed=int(seed)))
+                write_json_atomic(tmp / "synth_run.json", run_manifest("synth", {}, run_params, dict(sw.timings_s), seed=int(seed)))
     except OSError as err:  # unwritable / full output folder: one line, not a traceback
         raise ConfigError(f"--out {out_dir}: cannot write the output ({err.strerror or err})") from err
-    log.info("synthetic sequence %s: %d frames in %.1f s -> %s", p.name, n, sum(sw.timings_s.values()), out_dir)
-    return to_jsonable(truth)
+    return out_dir

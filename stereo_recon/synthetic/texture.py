@@ -31,7 +31,8 @@ class Material:
         (choose ~1 pixel footprint at the working distance so it neither aliases nor vanishes).
     stain_mix: weight of the coarse stain tile relative to the fine grain (0..1).
     pattern: "noise" | "bays" (ground with painted parking lines) | "band" (a painted horizontal
-        stripe) | "checker" (a calibration chessboard in its own plane frame).
+        stripe) | "panel" (a truck's cargo panels: seams, rails, dirt, decals in the truck's frame) |
+        "checker" (a calibration chessboard in its own plane frame).
     params: pattern parameters (see ``_apply_pattern``); values are floats or 3-vectors.
     """
 
@@ -247,6 +248,8 @@ def _apply_pattern(mat: Material, rgb: np.ndarray, p: np.ndarray, fp: np.ndarray
         if m.any():
             rgb[m] = np.asarray(pr["band_rgb"], np.float32)[None, :] * tex[m, None]
         return rgb
+    if mat.pattern == "panel":
+        return _panel_pattern(pr, rgb, p, tex)
     if mat.pattern == "checker":
         o = np.asarray(pr["origin"], float)
         ua = np.asarray(pr["u_axis"], float)
@@ -265,4 +268,37 @@ def _apply_pattern(mat: Material, rgb: np.ndarray, p: np.ndarray, fp: np.ndarray
         white = np.asarray(mat.albedo_rgb, np.float32)
         col = black[None, :] + (white - black)[None, :] * val[:, None].astype(np.float32)
         return col * np.clip(tex, 0.5, 1.5)[:, None]
+    return rgb
+
+
+def _panel_pattern(pr: dict, rgb: np.ndarray, p: np.ndarray, tex: np.ndarray) -> np.ndarray:
+    """A truck's cargo panels: decals painted over the paint, then seams, rails and dirt darken it.
+
+    pr: origin / x_axis (the truck frame's origin and x axis in the world; the truck stands upright),
+    seams_x_m, seam_width_m, seam_shade, rails_z_m, rail_shade, dirt, dirt_top_m, z_floor_m, decals
+    ((x0, x1, z0, z1, colour) in the truck frame, metres). p: (M, 3) world points; tex: (M,) noise factor.
+    """
+    o = np.asarray(pr["origin"], np.float32)
+    ax = np.asarray(pr["x_axis"], np.float32)
+    x = (p[:, 0] - o[0]) * ax[0] + (p[:, 1] - o[1]) * ax[1]  # truck-frame x (the truck is only yawed)
+    z = p[:, 2]
+    for x0, x1, z0, z1, col in pr.get("decals", ()):
+        m = (x >= x0) & (x <= x1) & (z >= z0) & (z <= z1)
+        if m.any():
+            rgb[m] = np.asarray(col, np.float32)[None, :] * tex[m, None]
+    shade = np.ones(len(p), np.float32)
+    seams = np.asarray(pr.get("seams_x_m", ()), np.float32)
+    if len(seams) > 1:
+        s0, step = float(seams[0]), float(seams[1] - seams[0])  # evenly spaced
+        dx = np.abs(np.mod(x - s0 + step / 2, step) - step / 2)
+        on = (dx < pr["seam_width_m"] / 2) & (x > s0 - step / 2) & (x < float(seams[-1]) + step / 2)
+        shade[on] *= np.float32(pr["seam_shade"])
+    elif len(seams) == 1:
+        shade[np.abs(x - seams[0]) < pr["seam_width_m"] / 2] *= np.float32(pr["seam_shade"])
+    for zl, zh in pr.get("rails_z_m", ()):
+        shade[(z >= zl) & (z <= zh)] *= np.float32(pr["rail_shade"])
+    if pr.get("dirt", 0.0) > 0:
+        top, floor = pr["dirt_top_m"], pr["z_floor_m"]
+        shade *= np.float32(1.0) - np.float32(pr["dirt"]) * np.clip((top - z) / max(top - floor, 1e-9), 0.0, 1.0).astype(np.float32)
+    rgb *= shade[:, None]
     return rgb
