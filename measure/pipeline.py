@@ -395,11 +395,13 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     reg.limits(vehicle_class)
     pts = read_cloud(cloud_path, min_points=max(100, config.min_cluster_points)) * UNITS_M[units]
     t_read = time.perf_counter() - t0
+    recorded = Path(record_path) if record_path is not None else cloud_path.resolve()
+    name = str(record_path) if record_path is not None else str(cloud_path)
     centre = None if centre_hint is None else np.asarray(centre_hint, float) * (UNITS_M[units] if centre_strict else 1.0)
-    m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=str(cloud_path))
-    check_plausible(m, scale, units, str(cloud_path))
+    m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=name)
+    check_plausible(m, scale, units, name)
     if centre_strict and centre is not None:
-        check_centre(m, centre, str(cloud_path))
+        check_centre(m, centre, name)
     gates = list(checks or []) + face_checks(m)
     if camera_centres is not None and len(camera_centres):
         gates += orbit_checks(m, camera_centres)
@@ -408,7 +410,6 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma)
     verdict = over_limit_verdict(values, uncertainty, reg, vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
     verdict = apply_data_quality(verdict, gates)
-    recorded = Path(record_path) if record_path is not None else cloud_path.resolve()
     summary = m.summary()
     timings = dict(summary.pop("timings_s"), read=t_read)
     result = {

@@ -209,7 +209,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     """
     from calib.io import parse_calib_arg  # noqa: PLC0415 - heavy imports stay inside the job
     from measure.pipeline import measure_cloud_file
-    from stereo_recon.quality import check_recording, checks_from_reconstruction
+    from stereo_recon.quality import camera_motion_check, check_recording, checks_from_reconstruction
     from stereo_recon.reconstruct import ReconstructConfig
     from stereo_recon.validate import check_output_dir
     from stereo_recon.video import open_stereo_source
@@ -241,9 +241,11 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
                 log.warning("resume: %s; reconstructing again", problem)
             stages["reconstruct"] = _reconstruct_stage(video, rig, tmp, rcfg, calib, config.quiet)
         meta = json.loads(paths.run_json.read_text())
-        checks += checks_from_reconstruction(meta)
-        up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
         centres = _camera_centres(paths.poses)
+        checks += checks_from_reconstruction(meta)
+        motion = camera_motion_check(meta, centres)
+        checks += [motion] if motion is not None else []
+        up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
         t1 = time.perf_counter()
         try:
             result = measure_cloud_file(
@@ -254,6 +256,10 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
             stages["measure"] = {"status": "done", "time_s": time.perf_counter() - t1}
         except StereoReconError as err:
             failure = err if isinstance(err, StageError) else StageError("measure", str(err))
+            failed = [c for c in checks if c["status"] == "fail"]
+            if failed:  # the likely cause, said with the failure
+                failure = StageError("measure", f"{str(failure).removeprefix('measure: ')} (data quality: "
+                                                + "; ".join(f"{c['name']}: {c['detail']}" for c in failed) + ")")
             stages["measure"] = {"status": "failed", "error": str(failure)}
             result = {}
         except Exception as err:
@@ -267,7 +273,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
             "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "total_time_s": time.perf_counter() - t0,
         }
-        if failure is None and result.get("data_quality") is None:
+        if result.get("data_quality") is None:
             summary["data_quality"] = {"ok": all(c["status"] != "fail" for c in checks), "checks": checks}
         write_json_atomic(paths.summary, summary)
     if failure is not None:

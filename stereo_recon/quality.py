@@ -11,7 +11,7 @@ The orbit, camera-motion and per-face checks need the measured truck: ``measure.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,6 +28,7 @@ class RecordingQualityConfig:
     identical_eyes_max_diff: float = 0.5   # mean |left - right| (grey levels, 0-255) below which the eyes are one image
     swapped_min_fraction: float = 0.8      # raw matches with negative disparity above this share: eyes swapped
     min_decoded_fraction: float = 0.95     # decoded frames / frames the container announces, below: incomplete orbit
+    min_parallax_deg: float = 5.0          # camera travel seen from the scene (deg), below: a static camera
 
 
 def check(name: str, status: str, detail: str) -> dict:
@@ -80,9 +81,16 @@ def _calibration_size(calib, rig) -> tuple[int, int]:
         return tuple(rig.image_size)
 
 
-def _rectified_calib_hint(rig) -> str:
-    K = rig.K1
-    return f"--calib {K[0, 0]:.2f},{K[1, 1]:.2f},{K[0, 2]:.2f},{K[1, 2]:.2f},{rig.baseline_m:.5f}"
+def _rectified_rig(rig):
+    """The rectified camera of a raw calibration (OpenCV's stereoRectify, alpha 0) as a rectified rig, and
+    its ``--calib`` text: what an exporter that rectifies with the same calibration gives."""
+    from calib.rig import StereoRig
+
+    rect = rig.rectification(alpha=0.0)
+    K = rect.K_rect
+    text = f"--calib {K[0, 0]:.3f},{K[1, 1]:.3f},{K[0, 2]:.3f},{K[1, 2]:.3f},{rect.baseline_m:.6f}"
+    return StereoRig.from_rectified(K[0, 0], K[1, 1], K[0, 2], K[1, 2], rect.baseline_m, rig.image_size,
+                                    source=f"rectified camera of {rig.metadata.get('source', 'the calibration')}"), text
 
 
 def check_recording(source, rig, rcfg, calib, config: RecordingQualityConfig = RecordingQualityConfig()):
@@ -109,7 +117,7 @@ def check_recording(source, rig, rcfg, calib, config: RecordingQualityConfig = R
     raw, verdict = res["raw"], res["verdict"]
     if verdict == "swapped_eyes" or (raw["matches"] >= 20 and raw["negative_disparity_fraction"] > config.swapped_min_fraction):
         raise InputError(f"{source.path}: eyes swapped: {100 * raw['negative_disparity_fraction']:.0f}% of "
-                         f"{raw['matches']} matched features lie further right in the left half than in the right half; "
+                         f"{raw['matches']} matched features sit further left in the left half than in the right half (negative disparity); "
                          "the left eye must be the left half (swap the halves of the video)")
     checks.append(check("eye_order", "pass" if raw["matches"] >= 20 else "warn",
                         f"{100 * (1 - raw['negative_disparity_fraction']):.0f}% of {raw['matches']} matches have a "
@@ -126,19 +134,39 @@ def check_recording(source, rig, rcfg, calib, config: RecordingQualityConfig = R
     checks.append(check("calibration_size", "pass" if cal_size == eye else "warn",
                         size_txt if cal_size != eye else f"calibration and video are both {eye[0]}x{eye[1]}"))
     if verdict == "already_rectified" and not rcfg.rectified:
-        hint = _rectified_calib_hint(rig)
+        rig, hint = _rectified_rig(rig)
         detail = (f"the video is already rectified (raw rows agree: median |dy| {raw['median_dy_px']:.2f} px; rectified "
-                  f"again {res['rectified']['median_dy_px']:.2f} px) but {calib} is a raw calibration: reconstructed as "
-                  f"rectified with the left eye's intrinsics; for the exporter's exact rectified camera pass "
-                  f"--calib fx,fy,cx,cy,baseline_m (approximately {hint[8:]})")
+                  f"again {res['rectified']['median_dy_px']:.2f} px) but {calib} is a raw calibration: reconstructed "
+                  f"with the rectified camera this calibration gives ({hint}); if the exporter's rectified camera "
+                  "differs, pass it as --calib fx,fy,cx,cy,baseline_m")
         log.warning("%s", detail)
-        rcfg = replace(rcfg, rectified=True)
         checks.append(check("rectification", "warn", detail))
     elif verdict == "inconclusive":
         checks.append(check("rectification", "warn", f"calibration not checked on the frames: {res['message']}"))
     else:
         checks.append(check("rectification", "pass", res["message"]))
     return rig, rcfg, checks
+
+
+def camera_motion_check(run: dict, centres: np.ndarray | None, config: RecordingQualityConfig = RecordingQualityConfig()):
+    """How far the camera moved, seen from the scene (deg of parallax): a static camera has no views around the truck.
+
+    run: ``run.json`` (the first view's disparity, focal length and baseline give the scene depth);
+    centres: camera centres (N, 3), metres. None when either is missing.
+    """
+    counts, rect = run.get("counts") or {}, ((run.get("rig") or {}).get("rectified") or {})
+    disp, f, B = counts.get("first_view_disparity_px"), rect.get("focal_px"), rect.get("baseline_m")
+    if centres is None or not len(centres) or not (disp and f and B):
+        return None
+    depth = float(f) * float(B) / float(disp)
+    spread = float(np.linalg.norm(np.ptp(np.asarray(centres, float), axis=0)))
+    parallax = float(np.degrees(spread / max(depth, 1e-9)))
+    if parallax < config.min_parallax_deg:
+        return check("camera_motion", "fail", f"the camera moved {spread:.3g} m over the recording, {parallax:.1f} deg seen "
+                                              f"from the scene {depth:.3g} m away: a static camera has no views around "
+                                              "the truck, so its far faces are not measured")
+    return check("camera_motion", "pass", f"the camera moved {spread:.3g} m, {parallax:.0f} deg seen from the scene "
+                                          f"{depth:.3g} m away")
 
 
 def checks_from_reconstruction(run: dict, config: RecordingQualityConfig = RecordingQualityConfig()) -> list[dict]:
