@@ -73,7 +73,7 @@ def _calibration_size(calib, rig) -> tuple[int, int]:
     from calib.zedconf import ZED_RESOLUTIONS
 
     res = rig.metadata.get("zed_resolution")
-    if res in ZED_RESOLUTIONS:
+    if str(calib).lower().endswith(".conf") and res in ZED_RESOLUTIONS:
         return tuple(ZED_RESOLUTIONS[res])
     try:
         return tuple(parse_calib_arg(str(calib)).image_size)
@@ -125,10 +125,11 @@ def check_recording(source, rig, rcfg, calib, config: RecordingQualityConfig = R
     cal_size, eye = _calibration_size(calib, rig), tuple(source.eye_size)
     size_txt = f"the calibration is for {cal_size[0]}x{cal_size[1]}, the video's eyes are {eye[0]}x{eye[1]}"
     if verdict == "calibration_mismatch":
-        extra = f"{size_txt}; pass the calibration made for {eye[0]}x{eye[1]}" if cal_size != eye else res["message"]
+        if cal_size == eye:
+            raise InputError(f"{calib}: does not fit {source.path}: {res['message']}")
         raise InputError(f"{calib}: does not fit {source.path}: rows of matched features disagree both raw (median "
                          f"{raw['median_dy_px']:.2f} px) and rectified (median {res['rectified']['median_dy_px']:.2f} px); "
-                         f"{extra}")
+                         f"{size_txt}; pass the calibration made for {eye[0]}x{eye[1]}")
     if verdict == "not_rectified":
         raise InputError(f"{calib}: {res['message']}")
     checks.append(check("calibration_size", "pass" if cal_size == eye else "warn",
