@@ -12,6 +12,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,9 @@ import pytest
 from measure.cloud_io import write_cloud
 from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
 from stereo_recon.cli import main
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: shared helpers (importlib import mode)
+from cli_outcome import folder_state, no_temp_left, refused  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -54,31 +58,6 @@ def good_folder(clouds, tmp_path_factory):
     out = tmp_path_factory.mktemp("good") / "out"
     assert main(["measure", str(clouds["m"]), "--out", str(out), "--no-plots"]) == 0
     return out
-
-
-def folder_state(folder) -> dict:
-    """name -> sha256 of every file under ``folder`` (and the names of hidden siblings' temp folders)."""
-    state = {}
-    for root, _, files in os.walk(folder):
-        for f in files:
-            p = os.path.join(root, f)
-            state[os.path.relpath(p, folder)] = hashlib.sha256(open(p, "rb").read()).hexdigest()
-    return state
-
-
-def refused(capsys, argv, pattern: str) -> str:
-    """Run the CLI, expect exit 2 and one line holding ``pattern``, no traceback."""
-    rc = main(argv)
-    err = capsys.readouterr().err.strip()
-    assert rc == 2, err
-    assert len(err.splitlines()) == 1, err
-    assert "Traceback" not in err
-    assert pattern in err, err
-    return err
-
-
-def no_temp_left(parent) -> None:
-    assert not [p.name for p in parent.iterdir() if ".tmp-" in p.name or ".old-" in p.name or "probe" in p.name]
 
 
 # ---- units and content -------------------------------------------------------------------------

@@ -26,38 +26,11 @@ import pytest
 
 from stereo_recon.cli import main
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: shared helpers (importlib import mode)
+from cli_outcome import folder_state, no_temp_left, refused  # noqa: E402
 from sample_variants import SAMPLE_CONF, SAMPLE_VIDEO, read_pairs, rectified_pairs, write_video  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def folder_state(folder: Path) -> dict:
-    """relative name -> sha256 of every file under ``folder``."""
-    state = {}
-    for root, _, files in os.walk(folder):
-        for f in files:
-            p = os.path.join(root, f)
-            state[os.path.relpath(p, folder)] = hashlib.sha256(open(p, "rb").read()).hexdigest()
-    return state
-
-
-def no_temp_left(parent: Path) -> None:
-    assert not [p.name for p in parent.iterdir() if ".tmp-" in p.name or ".old-" in p.name or "probe" in p.name]
-
-
-def refused(capsys, argv, pattern: str) -> str:
-    """Run the CLI; exit 2 with one stderr line holding ``pattern`` and no traceback."""
-    try:
-        rc = main([str(a) for a in argv])
-    except SystemExit as e:   # argparse's own refusals
-        rc = e.code
-    err = capsys.readouterr().err.strip()
-    assert rc == 2, err
-    assert "Traceback" not in err
-    assert pattern in err, err
-    assert len([line for line in err.splitlines() if not line.startswith(("usage:", " "))]) == 1, err
-    return err
 
 
 @pytest.fixture(scope="module")

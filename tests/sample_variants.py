@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 SAMPLE_VIDEO = REPO / "sample_data" / "video.avi"
 SAMPLE_CONF = REPO / "sample_data" / "SN28000001.conf"
 
