@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from stereo_recon.errors import InputError
@@ -78,6 +79,11 @@ def run(args) -> int:
         check_number(f"--{flag.replace('_', '-')}", getattr(args, flag), integer=typ is int,
                      strict=flag not in ("seed", "bootstrap"))
     check_number("--scale", args.scale)
+    for flag, vec in (("--up", args.up), ("--centre", args.centre)):
+        if vec is not None and not all(map(math.isfinite, vec)):
+            raise InputError(f"{flag} {','.join(f'{v:g}' for v in vec)}: must be three finite numbers")
+    if args.up is not None and not any(args.up):
+        raise InputError("--up 0,0,0: not a direction")
     cfg = load_config(args.config) if args.config else MeasureConfig()
     over = {field: getattr(args, flag) for flag, (field, _, _) in _OVERRIDES.items()}
     cfg = cfg.with_overrides(**over)

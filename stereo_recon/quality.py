@@ -132,6 +132,10 @@ def check_recording(source, rig, rcfg, calib, config: RecordingQualityConfig = R
                          f"{size_txt}; pass the calibration made for {eye[0]}x{eye[1]}")
     if verdict == "not_rectified":
         raise InputError(f"{calib}: {res['message']}")
+    if rcfg.rectified and verdict == "ok" and raw["median_dy_px"] > res["thresholds"]["median_px"]:
+        raise InputError(f"--rectified: the frames of {source.path} are not rectified (rows of matched features differ by "
+                         f"median {raw['median_dy_px']:.2f} px; {calib}'s rectification brings them to "
+                         f"{res['rectified']['median_dy_px']:.2f} px): drop --rectified")
     checks.append(check("calibration_size", "pass" if cal_size == eye else "warn",
                         size_txt if cal_size != eye else f"calibration and video are both {eye[0]}x{eye[1]}"))
     if verdict == "already_rectified" and not rcfg.rectified:

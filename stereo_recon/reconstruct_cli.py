@@ -72,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
     check_number("--depth-max-m", args.depth_max_m, allow_none=False)
     check_number("--step", args.step, integer=True, minimum=1, strict=False)
     check_output_dir(args.out)
+    if args.poses.startswith("gt:") and not Path(args.poses[3:]).is_file():
+        raise ConfigError(f"--poses {args.poses}: trajectory file not found")
     frame_range = parse_frame_range(args.frames)
     source = open_stereo_source(args.video, frame_range, args.step, args.fps)
     rig = parse_calib_arg(args.calib, image_size=source.eye_size)

@@ -151,6 +151,14 @@ def test_bad_number_refused_before_any_work(clouds, tmp_path, capsys, flag, valu
     no_temp_left(tmp_path)
 
 
+@pytest.mark.parametrize("arg, pattern", [("--up=0,0,0", "--up 0,0,0: not a direction"),
+                                          ("--up=nan,0,1", "--up nan,0,1: must be three finite numbers"),
+                                          ("--centre=inf,0,0", "--centre inf,0,0: must be three finite numbers")])
+def test_bad_direction_or_centre_refused(clouds, tmp_path, capsys, arg, pattern):
+    refused(capsys, ["measure", str(clouds["m"]), "--out", str(tmp_path / "out"), arg], pattern)
+    assert not (tmp_path / "out").exists()
+
+
 def test_bad_config_key_names_file_and_key(clouds, tmp_path, capsys):
     cfg = tmp_path / "m.toml"
     cfg.write_text("[measure]\neps_m = 0.05\nbogus_key = 1\n")

@@ -171,6 +171,12 @@ def test_identical_eyes_named(tmp_path, capsys, videos):
     assert not (tmp_path / "out").exists()
 
 
+def test_rectified_flag_on_raw_frames_refused(tmp_path, capsys):
+    refused(capsys, ["run", SAMPLE_VIDEO, "--calib", SAMPLE_CONF, "--rectified", "--out", tmp_path / "out"],
+            "the frames of")
+    assert not (tmp_path / "out").exists()
+
+
 def test_calibration_of_another_size_that_does_not_fit(tmp_path, capsys, rigs):
     err = refused(capsys, ["run", SAMPLE_VIDEO, "--calib", rigs["fhd_misfit"], "--out", tmp_path / "out"],
                   "the calibration is for 1920x1080, the video's eyes are 1280x720")
