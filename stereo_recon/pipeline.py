@@ -237,8 +237,8 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
                     os.link(final.root / name, tmp / name)
             stages["reconstruct"] = {"status": "reused"}
         else:
-            if config.resume:
-                log.warning("resume: %s; reconstructing again", problem)
+            if config.resume:   # nothing to resume in a new folder: no warning for that
+                (log.warning if final.root.exists() else log.info)("resume: %s; reconstructing again", problem)
             stages["reconstruct"] = _reconstruct_stage(video, rig, tmp, rcfg, calib, config.quiet)
         meta = json.loads(paths.run_json.read_text())
         centres = _camera_centres(paths.poses)
