@@ -120,6 +120,14 @@ def test_centre_far_from_every_cluster_is_an_error(clouds, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_centre_far_from_both_trucks_is_an_error(tmp_path, capsys):
+    pts, _ = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, second_vehicle_gap_m=0.5), rng=9)
+    cloud = write_cloud(tmp_path / "two.ply", pts)
+    refused(capsys, ["measure", str(cloud), "--out", str(tmp_path / "out"), "--centre=500,0,500", "--no-plots"],
+            "from the nearest truck-like cluster")
+    assert not (tmp_path / "out").exists()
+
+
 def test_centre_on_the_truck_is_accepted(clouds, scene, tmp_path):
     c = ",".join(f"{v:.3f}" for v in scene[1]["truck_centre"])
     assert main(["measure", str(clouds["m"]), "--out", str(tmp_path / "out"), f"--centre={c}", "--no-plots"]) == 0

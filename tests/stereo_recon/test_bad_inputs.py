@@ -228,6 +228,19 @@ def test_cut_video_reports_the_real_decoded_count(videos, caplog):
     assert c["status"] == "fail" and f"only {n} of the 48 frames" in c["detail"]
 
 
+@pytest.mark.slow
+def test_cut_video_run_ends_undecided_with_the_reason(tmp_path, capsys, videos):
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(videos["half"]), "--calib", str(SAMPLE_CONF), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    m = json.loads((out / "measurement.json").read_text())
+    by = {c["name"]: c for c in m["data_quality"]["checks"]}
+    assert by["frames_decoded"]["status"] == "fail" and "of the 48 frames" in by["frames_decoded"]["detail"]
+    assert m["data_quality"]["ok"] is False and m["verdict"]["overall"] == "undecided"
+    assert "frames_decoded" in m["verdict"]["reason"] and "data quality: FAILED (frames_decoded" in printed
+    assert json.loads((out / "job.json").read_text())["data_quality"]["ok"] is False
+
+
 def test_failed_gate_turns_any_verdict_undecided():
     from measure.quality import apply_data_quality
 
