@@ -95,15 +95,14 @@ _TEMP_RE = r"^\.+{name}\.(tmp|old)-(\d+)-"
 
 
 def _pid_alive(pid: int) -> bool:
-    """Whether a process with this id exists (a PermissionError means it does, owned by someone else)."""
+    """Whether a process with this id exists on this machine (a PermissionError means it does, owned by
+    someone else; any other doubt counts as alive, so a folder is never taken from a running process)."""
     if pid == os.getpid():
         return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:
-        return True
     except OSError:
         return True
     return True
@@ -221,11 +220,15 @@ def staged_output_dir(final_dir: str | os.PathLike, overwrite: bool = True, keep
     try:
         yield tmp
         keep_fn = keep or (lambda name: True)
-        if not overwrite and final.is_dir():
+        if not overwrite and final.is_dir():   # the old entries win: drop the new copies before the commit
             for item in final.iterdir():
-                if (tmp / item.name).exists() and keep_fn(item.name):
-                    dest = tmp / item.name
-                    shutil.rmtree(dest) if dest.is_dir() and not dest.is_symlink() else dest.unlink()
+                dest = tmp / item.name
+                if not (dest.exists() and keep_fn(item.name)):
+                    continue
+                if dest.is_dir() and not dest.is_symlink():
+                    shutil.rmtree(dest)
+                else:
+                    dest.unlink()
         try:
             commit_output_dir(tmp, final, keep_fn)
         except OSError as err:
