@@ -186,6 +186,10 @@ def run_calib_check(args: argparse.Namespace) -> int:
         raise InputError(f"{src}: not found")
     if args.frames < 1:
         raise ConfigError(f"--frames {args.frames}: need at least 1")
+    if args.out:
+        from stereo_recon.validate import check_output_file
+
+        check_output_file(args.out)
     spec = parse_board(args.board) if args.board else None
     pairs, size = _sample_pairs(src, args.frames)
     if not pairs:

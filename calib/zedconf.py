@@ -128,6 +128,9 @@ def read_zed_conf(path: str | os.PathLike, image_size: tuple[int, int] | None = 
         sec = f"{eye}_CAM_{res}"
         vals = sections[sec]
         fx, fy, cx, cy = (_float(path, sec, vals, k) for k in ("fx", "fy", "cx", "cy"))
+        for key, v in (("fx", fx), ("fy", fy)):
+            if v <= 0:
+                raise InputError(f"{path}: [{sec}] {key} = {v:g}: a focal length must be > 0 pixels")
         for k in _UNSUPPORTED_DIST_KEYS:
             if k in vals and _float(path, sec, vals, k, 0.0) != 0.0:
                 raise InputError(f"{path}: [{sec}] uses a lens model with the term '{k}' (beyond k1 k2 p1 p2 k3), which this "

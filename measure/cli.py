@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from stereo_recon.errors import InputError
@@ -45,6 +46,17 @@ def _vec3(text: str) -> tuple[float, float, float]:
     return tuple(parts)  # type: ignore[return-value]
 
 
+def data_quality_line(dq) -> str:
+    """One terminal line for a ``data_quality`` block (absent in older files)."""
+    if not dq:
+        return "data quality: not recorded"
+    bad = [c for c in dq.get("checks", []) if c.get("status") == "fail"]
+    warn = [c for c in dq.get("checks", []) if c.get("status") == "warn"]
+    if bad:
+        return "data quality: FAILED (" + "; ".join(f"{c['name']}: {c['detail']}" for c in bad) + ")"
+    return f"data quality: ok ({len(dq.get('checks', []))} checks" + (f", warnings: {', '.join(c['name'] for c in warn)}" if warn else "") + ")"
+
+
 def register(subparsers) -> None:
     """Add the ``measure`` subcommand."""
     p = subparsers.add_parser(
@@ -61,6 +73,7 @@ def register(subparsers) -> None:
     p.add_argument("--config", default=None, help="TOML/YAML file of measure parameters (unknown keys are rejected)")
     p.add_argument("--up", type=_vec3, default=None, metavar="X,Y,Z", help="approximate up direction in the cloud's frame (default: estimated); write --up=X,Y,Z when X is negative")
     p.add_argument("--centre", "--center", dest="centre", type=_vec3, default=None, metavar="X,Y,Z", help="a point near the truck (e.g. the orbit centre), to choose among several vehicles; --centre=X,Y,Z when X is negative")
+    p.add_argument("--units", choices=("m", "cm", "mm"), default="m", help="length unit of the cloud's coordinates (default m)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots and the HTML report")
     add_case_options(p)
     for flag, (_, typ, help_) in _OVERRIDES.items():
@@ -73,17 +86,31 @@ def run(args) -> int:
     from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
     from stereo_recon.progress import ProgressConfig, StageProgress
 
+    from measure.limits import load_regulation
+    from stereo_recon.validate import check_number, check_output_dir
+
+    # Everything is checked before any work: options, config, regulation and class, output folder.
+    for flag, (_, typ, _) in _OVERRIDES.items():
+        check_number(f"--{flag.replace('_', '-')}", getattr(args, flag), integer=typ is int,
+                     strict=flag not in ("seed", "bootstrap"))
+    check_number("--scale", args.scale)
+    for flag, vec in (("--up", args.up), ("--centre", args.centre)):
+        if vec is not None and not all(map(math.isfinite, vec)):
+            raise InputError(f"{flag} {','.join(f'{v:g}' for v in vec)}: must be three finite numbers")
+    if args.up is not None and not any(args.up):
+        raise InputError("--up 0,0,0: not a direction")
     cfg = load_config(args.config) if args.config else MeasureConfig()
     over = {field: getattr(args, flag) for flag, (field, _, _) in _OVERRIDES.items()}
-    for k, v in over.items():
-        if v is not None and (v <= 0 and k not in ("seed",)):
-            raise InputError(f"--{k.replace('_m', '').replace('_', '-')} must be positive, got {v}")
     cfg = cfg.with_overrides(**over)
-    out = Path(args.out)
+    load_regulation(args.regulation).limits(args.vehicle_class)
+    out = check_output_dir(args.out)
+    if not Path(args.cloud).is_file():
+        raise InputError(f"{args.cloud}: no such file" if not Path(args.cloud).exists() else f"{args.cloud}: not a file")
     with StageProgress(("measure", "plots", "report"), config=ProgressConfig(enabled=not getattr(args, "quiet", False))) as progress:
         res = measure_cloud_file(args.cloud, out, cfg, up_hint=args.up, centre_hint=args.centre, regulation=args.regulation,
                                  vehicle_class=args.vehicle_class, scale=args.scale, plots=not args.no_plots,
-                                 html=not args.no_plots, progress=progress, case=case_fields(args))
+                                 html=not args.no_plots, progress=progress, case=case_fields(args),
+                                 units=args.units, centre_strict=args.centre is not None)
     u = res["uncertainty_m"]
     v = res.get("verdict") or {}
     print(f"{args.cloud}: truck of {res['clusters']['n_truck_points']} points")
@@ -95,5 +122,6 @@ def run(args) -> int:
             line += f"  = {vd['value_m']:.3f} m ± {vd.get('uncertainty_m') or 0:.3f} m real (x{args.scale:g})"
         print(f"{line}  [{res['rules'][d]}]  {vd.get('verdict', '')}")
     print(f"  verdict: {v.get('overall')}{' — ' + v['reason'] if v.get('reason') else ''}")
+    print(f"  {data_quality_line(res.get('data_quality'))}")
     print(f"  written: {out / 'measurement.json'}")
     return 0

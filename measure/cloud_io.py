@@ -30,6 +30,8 @@ def read_cloud(path: str | os.PathLike, min_points: int = 100) -> np.ndarray:
         raise InputError(f"{p}: file is not readable")
     if p.stat().st_size == 0:
         raise InputError(f"{p}: file is empty")
+    if suffix == ".ply":
+        check_ply_complete(p)   # Open3D reads the missing points of a cut file as (0, 0, 0)
     if suffix == ".pts":
         pts = _read_pts(p)
     else:
@@ -50,6 +52,69 @@ def read_cloud(path: str | os.PathLike, min_points: int = 100) -> np.ndarray:
     if len(pts) < min_points:
         raise InputError(f"{p}: only {len(pts)} points, at least {min_points} are needed to measure a truck")
     return pts
+
+
+_PLY_TYPE_BYTES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,
+                   "int": 4, "int32": 4, "uint": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _ply_header(p: Path) -> tuple[str, int, list[tuple[str, int, list[list[str]]]]]:
+    """(format, header length in bytes, [(element, count, [property tokens])]) of a PLY file."""
+    with open(p, "rb") as f:
+        head = f.read(1 << 16)
+    end = head.find(b"end_header")
+    if not head.startswith(b"ply") or end < 0:
+        raise InputError(f"{p}: not a PLY file (no 'ply' ... 'end_header' header)")
+    nl = head.find(b"\n", end)
+    header_len = (nl + 1) if nl >= 0 else len(head)
+    fmt, elements = "", []
+    for line in head[:end].decode("ascii", "replace").splitlines():
+        tok = line.split()
+        if not tok:
+            continue
+        if tok[0] == "format" and len(tok) > 1:
+            fmt = tok[1]
+        elif tok[0] == "element" and len(tok) == 3:
+            try:
+                elements.append((tok[1], int(tok[2]), []))
+            except ValueError:
+                raise InputError(f"{p}: PLY header line {line.strip()!r} has no element count") from None
+        elif tok[0] == "property" and elements:
+            elements[-1][2].append(tok[1:])
+    return fmt, header_len, elements
+
+
+def check_ply_complete(p: Path) -> None:
+    """InputError when a PLY file holds fewer vertices than its header announces (a cut or truncated file).
+
+    Binary files: the bytes of the elements up to and including the vertices against the file size;
+    ASCII files: the number of data lines. Elements with list properties before the vertices are not sized.
+    """
+    fmt, header_len, elements = _ply_header(p)
+    size = p.stat().st_size - header_len
+    need = 0
+    for name, count, props in elements:
+        if any(t[0] == "list" for t in props):
+            return   # variable-size rows: cannot be sized without reading them
+        row = sum(_PLY_TYPE_BYTES.get(t[0], 0) for t in props)
+        if fmt == "ascii":
+            with open(p, "rb") as f:
+                f.seek(header_len)
+                lines = sum(1 for line in f if line.strip())
+            if name == "vertex" and lines < need + count:
+                raise InputError(f"{p}: PLY header announces {count} points but the file holds only "
+                                 f"{max(lines - need, 0)} point lines (truncated file)")
+            need += count
+            if name == "vertex":
+                return
+            continue
+        need += row * count
+        if name == "vertex":
+            if size < need:
+                have = max(0, (size - (need - row * count)) // max(row, 1))
+                raise InputError(f"{p}: PLY header announces {count} points but the file holds only {have} "
+                                 f"({size} of {need} bytes; truncated file)")
+            return
 
 
 def _read_text_xyz(p: Path) -> np.ndarray:

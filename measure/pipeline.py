@@ -356,7 +356,9 @@ def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_r
 def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfig(), up_hint=None, centre_hint=None,
                        regulation: str = "cn-2016-62", vehicle_class: str | None = None, scale: float | None = None,
                        plots: bool = True, html: bool = True, k_sigma: float = 2.0,
-                       reconstruction_rel_sigma: dict | None = None, progress=None, case: dict | None = None) -> dict:
+                       reconstruction_rel_sigma: dict | None = None, progress=None, case: dict | None = None,
+                       units: str = "m", centre_strict: bool = False,
+                       checks: list[dict] | None = None, camera_centres=None, record_path=None) -> dict:
     """Measure the truck in a cloud file; write ``out_dir/measurement.json`` (+ PNG plots, report.html).
 
     Output is written into a staging folder and moved into ``out_dir`` only when everything
@@ -370,7 +372,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     ``ground_plane`` (normal, offset, inlier rate, rms, iterations, initial normal and its source),
     ``clusters`` (counts, rejections per filter with an example, candidates, selection rule,
     merged labels), ``parameters`` (every MeasureConfig field plus the resolved metres),
-    ``timings_s``, ``frame`` (Eqs. 5-6 rotation/translation), ``axes``, ``input`` {path, sha256,
+    ``frame`` (Eqs. 5-6 rotation/translation), ``axes``, ``input`` {path, sha256,
     n_points}, ``regulation``, ``versions``, ``plots``. Plots: width_density.png,
     length_density.png (paper Figs. 5-6), top_view.png, side_view.png; report.html.
     progress: optional callback (stage, done, total or None): 'measure', 'plots', 'report'.
@@ -378,43 +380,70 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     When the cloud's folder is a run folder (run.json, poses.txt), ``recording`` names the source video and
     calibration with their sha256 and the recording time, and a keyframe with the measured box joins the plots.
     The record validates against ``measure/schemas/measurement.schema.json`` (``schema_version``).
+    ``data_quality`` {ok, checks}: ``checks`` given (the recording's gates) plus the truck's own
+    (faces seen; orbit arc and camera motion when ``camera_centres`` (N, 3), cloud frame, are given);
+    a failed one makes the verdict ``undecided`` (``measure.quality``). The file holds no times or
+    dates (same input, same bytes): they go to ``measure_run.json``.
+
+    units: the cloud's length unit (m, cm, mm). centre_strict: ``centre_hint`` was given by the user,
+    so a truck far from it is an error. record_path: the path to record for the cloud (where it will
+    live once a run's folder is committed). A cloud that cannot be a vehicle (units, scale, ground
+    only) is refused (``measure.quality.check_plausible``).
     """
     from measure.cloud_io import read_cloud
     from measure.limits import load_regulation, over_limit_verdict
+    from measure.quality import (UNITS_M, apply_data_quality, check_centre, check_plausible, data_quality, face_checks,
+                                 orbit_checks)
     from stereo_recon.manifest import library_versions, sha256_file, staged_output_dir, to_jsonable, write_json_atomic
 
     cloud_path = Path(cloud_path)
     report = progress or (lambda stage, done, total: None)
     report("measure", 0, None)
     t0 = time.perf_counter()
-    reg = load_regulation(regulation)   # fail early on a bad table, before any work
-    pts = read_cloud(cloud_path, min_points=max(100, config.min_cluster_points))
+    if units not in UNITS_M:
+        raise ConfigError(f"--units {units!r}: expected one of {', '.join(UNITS_M)}")
+    reg = load_regulation(regulation)   # fail early on a bad table or class, before any work
+    reg.limits(vehicle_class)
+    pts = read_cloud(cloud_path, min_points=max(100, config.min_cluster_points)) * UNITS_M[units]
     t_read = time.perf_counter() - t0
-    m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre_hint, rng=config.seed, source=str(cloud_path))
+    recorded = Path(record_path) if record_path is not None else cloud_path.resolve()
+    name = str(record_path) if record_path is not None else str(cloud_path)
+    centre = None if centre_hint is None else np.asarray(centre_hint, float) * (UNITS_M[units] if centre_strict else 1.0)
+    m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=name)
+    check_plausible(m, scale, units, name)
+    if centre_strict and centre is not None:
+        check_centre(m, centre, name)
+    gates = list(checks or []) + face_checks(m)
+    if camera_centres is not None and len(camera_centres):
+        gates += orbit_checks(m, camera_centres)
     sha = sha256_file(cloud_path)
     values = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
     uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma)
     verdict = over_limit_verdict(values, uncertainty, reg, vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
+    verdict = apply_data_quality(verdict, gates)
+    summary = m.summary()
+    timings = dict(summary.pop("timings_s"), read=t_read)
     result = {
         "schema_version": SCHEMA_VERSION,
         "length_m": m.length_m, "width_m": m.width_m, "height_m": m.height_m, "uncertainty_m": uncertainty,
         **({"uncertainty_parts": parts} if parts else {}),
         "verdict": verdict,
-        **{k: v for k, v in m.summary().items() if k not in ("length_m", "width_m", "height_m", "uncertainty_m")},
-        "input": {"path": str(cloud_path.resolve()), "sha256": sha, "n_points": len(pts)},
-        "input_path": str(cloud_path), "input_sha256": sha,
+        "data_quality": data_quality(gates),
+        **{k: v for k, v in summary.items() if k not in ("length_m", "width_m", "height_m", "uncertainty_m")},
+        "input": {"path": str(recorded), "sha256": sha, "n_points": len(pts), "units": units},
+        "input_path": str(recorded), "input_sha256": sha,
         "regulation": {"name": regulation, "vehicle_class": vehicle_class, "scale": scale, "k_sigma": k_sigma},
         "versions": library_versions(),
-        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "stage": "measure",
     }
-    result["timings_s"] = dict(result["timings_s"], read=t_read)
     case = {k: str(v) for k, v in (case or {}).items() if v}
     if case:
         result["case"] = case
     run_info = _run_info(cloud_path.parent)
     if run_info:
         result["recording"] = _recording(run_info)
+    manifest = {"command": "measure", "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "input": result["input"], "timings_s": timings}
     with staged_output_dir(out_dir) as tmp:
         images: dict[str, Path] = {}
         if plots:
@@ -428,9 +457,10 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
                 if kf is not None:
                     images["keyframe"] = Path(kf["path"])
                     result["recording"]["keyframe"] = {"frame": kf["frame"], "time_s": kf["time_s"]}
-            result["timings_s"]["plots"] = time.perf_counter() - t
+            timings["plots"] = time.perf_counter() - t
         result["plots"] = {k: v.name for k, v in images.items()}
         write_json_atomic(tmp / "measurement.json", result)
+        write_json_atomic(tmp / "measure_run.json", manifest)
         if html:
             try:
                 from measure.report_html import render_report_html
@@ -438,7 +468,8 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
                 render_report_html = None
             if render_report_html is not None:
                 report("report", 0, None)
-                render_report_html(to_jsonable(result), images, tmp / "report.html", run_info=run_info)
+                render_report_html(to_jsonable(dict(result, created_utc=manifest["created_utc"])), images,
+                                   tmp / "report.html", run_info=run_info)
     return to_jsonable(result)
 
 

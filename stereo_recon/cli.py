@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -97,6 +98,8 @@ def _open_log_file(args, argv: list[str] | None) -> tuple[logging.Handler | None
     if folder.suffix.lower() in _FILE_OUTPUTS:
         return None, None, False  # a file, not an output folder: no log beside it in someone's folder
     created = not folder.exists()
+    log_path = folder / "log.txt"
+    log_size = log_path.stat().st_size if log_path.is_file() else None
     try:
         folder.mkdir(parents=True, exist_ok=True)
         handler = logging.FileHandler(folder / "log.txt", mode="a", encoding="utf-8")
@@ -109,7 +112,16 @@ def _open_log_file(args, argv: list[str] | None) -> tuple[logging.Handler | None
     logging.getLogger().addHandler(handler)
     cmd = " ".join(sys.argv[:1] + list(sys.argv[1:] if argv is None else argv))
     logging.getLogger("stereo_recon.cli").debug("stereo-recon %s: %s (cwd %s)", __version__, cmd, Path.cwd())
+    handler._folder_before = (_folder_state(folder), log_size)  # type: ignore[attr-defined]
     return handler, folder, created
+
+
+def _folder_state(folder: Path) -> dict:
+    """Names and (size, mtime) of a folder's entries other than log.txt: what a refused command must leave as it was."""
+    try:
+        return {e.name: (e.stat().st_size, e.stat().st_mtime_ns) for e in os.scandir(folder) if e.name != "log.txt"}
+    except OSError:
+        return {}
 
 
 # Commands that import Open3D (its own warnings would reach the terminal).
@@ -126,8 +138,19 @@ def _close_log_file(handler, folder: Path | None, created: bool, code: int, refu
     logging.getLogger("stereo_recon.cli").debug("exit code %d", code)
     logging.getLogger().removeHandler(handler)
     handler.close()
-    if created and refused and folder is not None and [p.name for p in folder.iterdir()] == ["log.txt"]:
-        (folder / "log.txt").unlink()
+    if not refused or folder is None:
+        return
+    before, log_size = getattr(handler, "_folder_before", (None, None))
+    if _folder_state(folder) != before:
+        return  # the command changed the folder (e.g. a kept reconstruction): its log stays with it
+    # A refused command leaves the folder exactly as it was: its log lines go too.
+    log_path = folder / "log.txt"
+    if log_size is None:
+        log_path.unlink(missing_ok=True)
+    else:
+        with open(log_path, "r+b") as f:
+            f.truncate(log_size)
+    if created and not any(folder.iterdir()):
         folder.rmdir()
 
 

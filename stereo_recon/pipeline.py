@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from stereo_recon.errors import InputError, StageError, StereoReconError
-from stereo_recon.manifest import sha256_file, to_jsonable, write_json_atomic
+from stereo_recon.manifest import sha256_file, staged_output_dir, to_jsonable, write_json_atomic
 from stereo_recon.progress import ProgressConfig, StageProgress
 
 log = logging.getLogger(__name__)
@@ -93,19 +94,104 @@ def find_sample() -> tuple[Path, Path]:
     return videos[0], calibs[0]
 
 
-def _stage_done(paths: RunPaths, video: Path, rcfg=None) -> bool:
-    """Whether the reconstruction in ``paths`` was made from this video (sha256) with these settings."""
-    if not (paths.cloud.is_file() and paths.run_json.is_file()):
-        return False
+# Files of a run's folder that belong to the run: a new run replaces them all (an earlier run's
+# mesh.ply or plots never sit beside a new cloud); anything else in the folder is kept.
+RUN_OUTPUTS = frozenset({"cloud.ply", "poses.txt", "run.json", "mesh.ply", "work", "measurement.json", "report.html",
+                         "job.json", "measure_run.json", "width_density.png", "length_density.png", "top_view.png", "side_view.png"})
+# The reconstruction's files, reused by --resume when every input that made them is unchanged.
+RECONSTRUCTION_FILES = ("cloud.ply", "poses.txt", "run.json", "mesh.ply")
+
+
+def validate_job(config: RunConfig):
+    """Check the job's settings before any work: scale, regulation table and vehicle class, measure config.
+
+    Returns (regulation, MeasureConfig). Raises ConfigError naming the file/key and the fault.
+    """
+    from measure.limits import load_regulation
+    from measure.pipeline import MeasureConfig, load_config
+    from stereo_recon.validate import check_number
+
+    check_number("--scale", config.scale)
+    reg = load_regulation(config.regulation)
+    reg.limits(config.vehicle_class)
+    mcfg = load_config(config.measure_config) if config.measure_config else MeasureConfig()
+    return reg, mcfg
+
+
+def _sha256_source(path: Path) -> str:
+    """sha256 of a video file, or of a folder of images (names and contents, in name order)."""
+    import hashlib
+
+    if path.is_file():
+        return sha256_file(path)
+    h = hashlib.sha256()
+    for f in sorted(q for q in path.rglob("*") if q.is_file()):
+        h.update(str(f.relative_to(path)).encode() + b"\0" + sha256_file(f).encode())
+    return h.hexdigest()
+
+
+def input_fingerprint(video: Path, calib, rcfg) -> dict:
+    """Everything that makes a reconstruction: video and calibration hashes, every parameter, program version."""
+    from stereo_recon import __version__
+
+    cp = Path(str(calib))
+    return {"video_sha256": _sha256_source(video),
+            "calib": {"sha256": sha256_file(cp)} if cp.is_file() else {"text": str(calib)},
+            "reconstruct": json.loads(json.dumps(to_jsonable(asdict(rcfg)))),
+            "version": __version__}
+
+
+def output_record(root: Path, names) -> dict:
+    """{name: {bytes, sha256}} of the files ``names`` present in ``root``."""
+    return {n: {"bytes": (root / n).stat().st_size, "sha256": sha256_file(root / n)} for n in names if (root / n).is_file()}
+
+
+def _changed_params(old: dict, new: dict) -> list[str]:
+    keys = sorted(set(old) | set(new))
+    return [f"{k} ({old.get(k)!r} -> {new.get(k)!r})" for k in keys if old.get(k) != new.get(k)]
+
+
+def reuse_problem(paths: RunPaths, fingerprint: dict) -> str | None:
+    """Why the reconstruction in ``paths`` cannot be reused for ``fingerprint`` (None: it can).
+
+    It can when job.json records the same video and calibration (sha256), the same parameters and
+    program version, and cloud/poses/run.json still have the sizes and hashes recorded when written.
+    """
+    if not paths.summary.is_file():
+        return f"no record of an earlier run in {paths.root} (job.json)"
     try:
-        meta = json.loads(paths.run_json.read_text())
-        recorded = meta.get("inputs", {}).get("video", {}).get("sha256")
-        params = meta.get("parameters", {}).get("reconstruct")
-    except (OSError, json.JSONDecodeError, AttributeError):
-        return False
-    if rcfg is not None and params != json.loads(json.dumps(to_jsonable(asdict(rcfg)))):
-        return False
-    return recorded == sha256_file(video)
+        job = json.loads(paths.summary.read_text())
+        old, outputs = job["fingerprint"], job["outputs"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"{paths.summary} is unreadable or from an older version"
+    why = []
+    if old.get("video_sha256") != fingerprint["video_sha256"]:
+        why.append(f"the video changed (sha256 {str(old.get('video_sha256'))[:12]} -> {fingerprint['video_sha256'][:12]})")
+    if old.get("calib") != fingerprint["calib"]:
+        o, n = old.get("calib") or {}, fingerprint["calib"]
+        why.append(f"the calibration changed ({str(o.get('sha256') or o.get('text'))[:16]} -> "
+                   f"{str(n.get('sha256') or n.get('text'))[:16]})")
+    if old.get("reconstruct") != fingerprint["reconstruct"]:
+        why.append("reconstruction parameters changed: " + ", ".join(_changed_params(old.get("reconstruct") or {},
+                                                                                      fingerprint["reconstruct"])))
+    if old.get("version") != fingerprint["version"]:
+        why.append(f"the program version changed ({old.get('version')} -> {fingerprint['version']})")
+    for name in ("cloud.ply", "poses.txt", "run.json"):
+        if name not in outputs:
+            why.append(f"{name} was not recorded")
+    for name, rec in outputs.items():
+        f = paths.root / name
+        if not f.is_file():
+            why.append(f"{name} is missing")
+        elif f.stat().st_size != rec.get("bytes"):
+            why.append(f"{name} is {f.stat().st_size} bytes, the run wrote {rec.get('bytes')} (truncated or modified)")
+        elif sha256_file(f) != rec.get("sha256"):
+            why.append(f"{name} is not the file the run wrote (sha256 differs)")
+    return "; ".join(why) or None
+
+
+def _keep_foreign(name: str) -> bool:
+    return name not in RUN_OUTPUTS
 
 
 def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config: RunConfig = RunConfig()) -> dict:
@@ -117,83 +203,112 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     calib : ZED ``.conf``, rig YAML, or inline rectified parameters (see ``calib.io.parse_calib_arg``).
     out_dir : output folder; see :class:`RunPaths` for its files.
 
+    Everything is checked before any work (settings, files, output folder, the recording's data
+    quality that frames can tell); the folder is then written as one transaction: the complete new
+    folder, or the old one untouched. A measure failure after a good reconstruction leaves the new
+    reconstruction (and job.json saying why there is no measurement), never the old measurement.
     Returns the job summary dict (also written to ``job.json``).
     """
     from calib.io import parse_calib_arg  # noqa: PLC0415 - heavy imports stay inside the job
-    from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
-    from stereo_recon.reconstruct import ReconstructConfig, reconstruct
+    from measure.pipeline import measure_cloud_file
+    from stereo_recon.quality import camera_motion_check, check_recording, checks_from_reconstruction
+    from stereo_recon.reconstruct import ReconstructConfig
+    from stereo_recon.validate import check_output_dir
+    from stereo_recon.video import open_stereo_source
 
+    t0 = time.perf_counter()
     video = Path(video)
     if not video.exists():
         raise InputError(f"{video}: no such file or folder")
-    paths = RunPaths(Path(out_dir))
-    stages: dict[str, dict] = {}
-
-    progress = StageProgress(config=ProgressConfig(enabled=not config.quiet))
-    t0 = time.perf_counter()
+    _, mcfg = validate_job(config)
+    final = RunPaths(check_output_dir(out_dir))
+    source = open_stereo_source(video)
+    rig = parse_calib_arg(str(calib), image_size=source.eye_size)
     rcfg = replace(ReconstructConfig(poses=config.poses, rectified=config.rectified), **config.reconstruct_overrides)
-    if config.resume and _stage_done(paths, video, rcfg):
-        log.info("reconstruct: reusing %s", paths.cloud)
-        stages["reconstruct"] = {"status": "reused"}
-    else:
-        from stereo_recon.video import open_stereo_source
-
-        rig = parse_calib_arg(str(calib), image_size=open_stereo_source(video).eye_size)
+    rig, rcfg, checks = check_recording(source, rig, rcfg, calib)
+    fingerprint = input_fingerprint(video, calib, rcfg)
+    problem = reuse_problem(final, fingerprint) if config.resume else None
+    stages: dict[str, dict] = {}
+    failure: StereoReconError | None = None
+    progress = StageProgress(config=ProgressConfig(enabled=not config.quiet))
+    with staged_output_dir(final.root, keep=_keep_foreign) as tmp:
+        paths = RunPaths(tmp)
+        if config.resume and problem is None:
+            log.info("resume: reusing the reconstruction in %s (same video, calibration, parameters, version)", final.root)
+            for name in RECONSTRUCTION_FILES:
+                if (final.root / name).is_file():
+                    os.link(final.root / name, tmp / name)
+            stages["reconstruct"] = {"status": "reused"}
+        else:
+            if config.resume:   # nothing to resume in a new folder: no warning for that
+                (log.warning if final.root.exists() else log.info)("resume: %s; reconstructing again", problem)
+            stages["reconstruct"] = _reconstruct_stage(video, rig, tmp, rcfg, calib, progress)
+        meta = json.loads(paths.run_json.read_text())
+        centres = _camera_centres(paths.poses)
+        checks += checks_from_reconstruction(meta)
+        motion = camera_motion_check(meta, centres)
+        checks += [motion] if motion is not None else []
+        up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
+        t1 = time.perf_counter()
         try:
-            reconstruct(video, rig, paths.root, rcfg, calib_path=Path(calib) if Path(calib).exists() else None,
-                        progress=progress)
-        except StereoReconError:
-            raise
-        except Exception as err:  # a bug or library failure inside the stage: name the stage
-            raise StageError("reconstruct", f"{type(err).__name__}: {err}") from err
-        finally:
-            progress.close()
-        stages["reconstruct"] = {"status": "done", "time_s": time.perf_counter() - t0}
-
-    meta = json.loads(paths.run_json.read_text())
-    up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
-    centre = _orbit_centre(paths.poses)
-
-    t1 = time.perf_counter()
-    mcfg = load_config(config.measure_config) if config.measure_config else MeasureConfig()
-    try:
-        result = measure_cloud_file(
-            paths.cloud, paths.root, mcfg, up_hint=up, centre_hint=centre,
-            regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
-            reconstruction_rel_sigma=config.reconstruction_rel_sigma, progress=progress, case=config.case,
-        )
-    except StereoReconError as err:
-        if isinstance(err, StageError):
-            raise
-        raise StageError("measure", str(err)) from err
-    except Exception as err:
-        raise StageError("measure", f"{type(err).__name__}: {err}") from err
-    progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
-    stages["measure"] = {"status": "done", "time_s": time.perf_counter() - t1}
-
-    summary = {
-        "video": str(video),
-        "calib": str(calib),
-        "out_dir": str(paths.root),
-        "length_m": result["length_m"],
-        "width_m": result["width_m"],
-        "height_m": result["height_m"],
-        "uncertainty_m": result.get("uncertainty_m"),
-        "verdict": result.get("verdict"),
-        "stages": stages,
-        "total_time_s": time.perf_counter() - t0,
-    }
-    write_json_atomic(paths.summary, summary)
+            result = measure_cloud_file(
+                paths.cloud, paths.root, mcfg, up_hint=up, centre_hint=None if centres is None else centres.mean(axis=0),
+                regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
+                reconstruction_rel_sigma=config.reconstruction_rel_sigma, checks=checks, camera_centres=centres,
+                record_path=final.cloud, progress=progress, case=config.case)
+            progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
+            stages["measure"] = {"status": "done", "time_s": time.perf_counter() - t1}
+        except StereoReconError as err:
+            failure = err if isinstance(err, StageError) else StageError("measure", str(err))
+            failed = [c for c in checks if c["status"] == "fail"]
+            if failed:  # the likely cause, said with the failure
+                failure = StageError("measure", f"{str(failure).removeprefix('measure: ')} (data quality: "
+                                                + "; ".join(f"{c['name']}: {c['detail']}" for c in failed) + ")")
+            stages["measure"] = {"status": "failed", "error": str(failure)}
+            result = {}
+        except Exception as err:
+            raise StageError("measure", f"{type(err).__name__}: {err}") from err
+        summary = {
+            "video": str(video), "calib": str(calib), "out_dir": str(final.root),
+            **{k: result.get(k) for k in ("length_m", "width_m", "height_m", "uncertainty_m", "verdict", "data_quality")},
+            "stages": stages,
+            "fingerprint": fingerprint,
+            "outputs": output_record(tmp, RECONSTRUCTION_FILES),
+            "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "total_time_s": time.perf_counter() - t0,
+        }
+        if result.get("data_quality") is None:
+            summary["data_quality"] = {"ok": all(c["status"] != "fail" for c in checks), "checks": checks}
+        write_json_atomic(paths.summary, summary)
+    if failure is not None:
+        raise failure
     return summary
 
 
-def _orbit_centre(poses_path: Path) -> np.ndarray | None:
-    """Mean camera centre of the trajectory (world frame): the truck sits there on an orbit."""
+def _reconstruct_stage(video: Path, rig, out: Path, rcfg, calib, progress) -> dict:
+    """Run ``reconstruct`` into ``out`` reporting to ``progress``; a library failure is named as the stage's."""
+    from stereo_recon.reconstruct import reconstruct
+
+    t = time.perf_counter()
+    try:
+        reconstruct(video, rig, out, rcfg, calib_path=Path(calib) if Path(str(calib)).exists() else None,
+                    progress=progress)
+    except StereoReconError:
+        raise
+    except Exception as err:  # a bug or library failure inside the stage: name the stage
+        raise StageError("reconstruct", f"{type(err).__name__}: {err}") from err
+    finally:
+        progress.close()
+    return {"status": "done", "time_s": time.perf_counter() - t}
+
+
+def _camera_centres(poses_path: Path) -> np.ndarray | None:
+    """Camera centres (N, 3) of the trajectory (world frame, metres), or None when there is none."""
     from stereo_recon.trajectory import read_tum
 
     try:
         traj = read_tum(poses_path)
-    except Exception:  # a missing/odd trajectory only loses the hint
+    except Exception:  # a missing/odd trajectory only loses the hint and the orbit checks
         return None
     centres = traj.T_wc[:, :3, 3]
-    return centres.mean(axis=0) if len(centres) else None
+    return centres if len(centres) else None

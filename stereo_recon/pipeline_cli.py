@@ -105,8 +105,11 @@ def _add_random_bench_options(c: argparse.ArgumentParser) -> None:
 def _job_config(args, resume: bool):
     from stereo_recon.pipeline import RunConfig
 
-    if args.scale is not None and not args.scale > 0:
-        raise ConfigError(f"--scale: must be > 0, got {args.scale}")
+    from stereo_recon.validate import check_number
+
+    check_number("--scale", args.scale)
+    if getattr(args, "workers", None) is not None:
+        check_number("--workers", args.workers, integer=True, minimum=1, strict=False)
     extra = {}
     if getattr(args, "reconstruction_sigma_pct", None) is not None:
         extra["reconstruction_rel_sigma"] = _parse_sigma_pct(args.reconstruction_sigma_pct)
@@ -177,6 +180,9 @@ def _print_summary(s: dict) -> None:
         reg = v.get("regulation", "?")
         reg = reg.get("name", "?") if isinstance(reg, dict) else reg
         print(f"verdict ({reg}): {v.get('overall', '?')}" + (f" — {v['reason']}" if v.get("reason") else ""))
+    from measure.cli import data_quality_line
+
+    print(data_quality_line(s.get("data_quality")))
     print(f"report: {Path(s['out_dir']) / 'report.html'}")
 
 
@@ -191,7 +197,8 @@ def _cmd_run(args) -> int:
         if args.calib is None:
             raise InputError(f"{video}: --calib is required with a video (a ZED .conf, rig YAML or fx,fy,cx,cy,baseline_m)")
         calib = args.calib
-    summary = run_video(video, calib, args.out, _job_config(args, args.resume))
+    cfg = _job_config(args, args.resume)
+    summary = run_video(video, calib, args.out, cfg)
     _print_summary(summary)
     return 0
 
@@ -207,7 +214,12 @@ def _cmd_batch(args) -> int:
 
     from dataclasses import replace
 
+    from stereo_recon.pipeline import validate_job
+    from stereo_recon.validate import check_output_dir
+
     cfg = replace(_job_config(args, args.resume), quiet=True)  # parallel jobs: no per-job progress lines
+    validate_job(cfg)   # regulation, class, config: once, before any job
+    check_output_dir(args.out, foreign_ok=True)   # holds one folder per recording, never replaced as a whole
     names = [v.stem for v in args.videos]
     dupes = {n for n in names if names.count(n) > 1}
     jobs = []
@@ -270,9 +282,13 @@ def _cmd_bench(args) -> int:
     from stereo_recon.batch import Job, run_jobs
     from stereo_recon.bench import bench_one, bench_summary, parse_truck_range, run_study, table_markdown, verdict_matches, write_bench
 
+    from stereo_recon.validate import check_number, check_output_dir
+
+    check_number("--workers", args.workers, integer=True, minimum=1, strict=False)
+    check_number("--frames", args.frames, integer=True, minimum=3, strict=False)
     if args.random is not None:
         return _cmd_bench_random(args)
-    out = args.out
+    out = check_output_dir(args.out, foreign_ok=True)   # scenes/, runs/, tables: never replaced as a whole
     trucks = parse_truck_range(args.trucks)
     if args.study:
         trucks = [t for t in trucks if t <= 6] or [1, 2, 3, 4, 5, 6]  # the paper's six training trucks

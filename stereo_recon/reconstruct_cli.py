@@ -68,6 +68,17 @@ def run(args: argparse.Namespace) -> int:
 
         if not gpu.cuda_available():
             raise ConfigError("--gpu: torch with a CUDA device is not available (install the [gpu] extra)")
+    from stereo_recon.validate import check_number, check_output_dir
+
+    # Options and the output folder are checked before the video is opened.
+    check_number("--fps", args.fps)
+    check_number("--voxel-m", args.voxel_m)
+    check_number("--depth-min-m", args.depth_min_m, allow_none=False)
+    check_number("--depth-max-m", args.depth_max_m, allow_none=False)
+    check_number("--step", args.step, integer=True, minimum=1, strict=False)
+    check_output_dir(args.out)
+    if args.poses.startswith("gt:") and not Path(args.poses[3:]).is_file():
+        raise ConfigError(f"--poses {args.poses}: trajectory file not found")
     frame_range = parse_frame_range(args.frames)
     source = open_stereo_source(args.video, frame_range, args.step, args.fps)
     rig = parse_calib_arg(args.calib, image_size=source.eye_size)

@@ -187,7 +187,8 @@ class SideBySideVideo(StereoSource):
                     bad_run += 1
                     if (self.frame_count > 1 and index >= self.frame_count - 1) or bad_run > self.max_consecutive_bad:
                         if self.frame_count > 1 and index < self.frame_count - 1:
-                            log.warning("%s: decoding stopped at frame %d of %d", self.path, index, self.frame_count)
+                            log.warning("%s: decoding stopped at frame %d of %d (%d frames decoded)", self.path,
+                                        index - bad_run + 1, self.frame_count, self.frames_read)
                         break
                     if wanted:
                         pending_bad.append(index)

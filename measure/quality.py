@@ -1,0 +1,184 @@
+"""Data-quality gates on a measured truck: units and content, faces seen, orbit and camera motion.
+
+A measurement is only as good as what was seen: length is bounded by the front and rear faces,
+width by the two side walls, height by the roof (and the ground). A gate that fails turns the
+verdict into ``undecided`` (``apply_data_quality``); content that cannot be a vehicle at all (a 2 km
+or 3 mm "truck", a bump in the ground) is refused with a hint (``check_plausible``).
+Checks follow the ``measurement.json["data_quality"]`` contract: ``{"name", "status", "detail"}``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereo_recon.errors import InputError, StageError
+
+UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}   # --units: metres per unit of the cloud's coordinates
+
+
+@dataclass(frozen=True)
+class TruckQualityConfig:
+    """Thresholds of the truck gates (fractions, metres, degrees)."""
+
+    # Sizes a measured vehicle (or a scale model of one) can have, metres; outside: wrong units.
+    min_size_m: float = 0.05
+    max_size_m: float = 40.0
+    # A road vehicle's length (m) after --scale; outside: the scale factor is wrong.
+    min_real_length_m: float = 2.0
+    max_real_length_m: float = 40.0
+    # A truck stands clear of the ground: height >= this x the ground layer's noise (rms, resolution).
+    min_height_to_ground_noise: float = 10.0
+    # Faces: share of a face's cells (a grid over its rectangle, 10-90 % of the height) holding points
+    # within a band of its plane; below min: not seen, the dimension it bounds is undecided.
+    face_grid: tuple[int, int] = (12, 4)       # cells along the face, cells up it
+    face_band_rel: float = 0.04                # band half-width: this x the dimension across the face ...
+    face_band_res: float = 4.0                 # ... or this x the resolution, whichever is larger
+    min_face_coverage: float = 0.25
+    min_roof_support: float = 0.02             # share of the truck's points at the roof level (0.10: warn)
+    # Orbit: azimuth range of the camera centres around the truck (deg) and their spread seen from it.
+    min_orbit_arc_deg: float = 180.0
+    warn_orbit_arc_deg: float = 300.0
+    # A --centre farther than this x the truck's length from its footprint picked nothing near it.
+    max_centre_offset_rel: float = 1.0
+
+
+def _check(name: str, status: str, detail: str) -> dict:
+    return {"name": name, "status": status, "detail": detail}
+
+
+def check_plausible(m, scale: float | None, units: str, source: str, config: TruckQualityConfig = TruckQualityConfig()):
+    """Refuse a measurement that cannot be a vehicle: wrong units, wrong scale, or only the ground.
+
+    m: ``measure.pipeline.Measurement`` (metres after ``units``). Raises InputError with a hint.
+    """
+    c = config
+    dims = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
+    big = {d: v for d, v in dims.items() if v > c.max_size_m}
+    if big:
+        d, v = max(big.items(), key=lambda kv: kv[1])
+        fits = [u for u, f in (("cm", 0.01), ("mm", 0.001)) if c.min_size_m <= v / UNITS_M[units] * f <= c.max_size_m]
+        hint = f"--units {fits[-1]}" if fits else "--units m|cm|mm"
+        raise InputError(f"{source}: the truck's {d} reads {v:.4g} m, which no vehicle has: is the cloud in other "
+                         f"units than {units}? ({hint})")
+    if dims["length"] < c.min_size_m:
+        raise InputError(f"{source}: the truck's length reads {dims['length'] * 1000:.3g} mm, too small for a vehicle or "
+                         f"a model of one (>= {c.min_size_m * 100:g} cm): check the cloud's units (--units m|cm|mm) "
+                         "or its scale")
+    noise = max(float(m.ground.get("rms_m") or 0.0), float(m.ground.get("layer_sigma_m") or 0.0),
+                float(m.parameters["resolved"]["resolution_m"]))
+    if dims["height"] < c.min_height_to_ground_noise * noise:
+        raise StageError("measure", f"{source}: no truck: the best cluster ({m.clusters.get('n_truck_points')} points) is "
+                                    f"{dims['height'] * 1000:.3g} mm tall, only {dims['height'] / noise:.1f} x the ground "
+                                    f"layer's noise ({noise * 1000:.3g} mm): the cloud holds ground, not a vehicle")
+    if scale is not None:
+        real = dims["length"] * scale
+        if not c.min_real_length_m <= real <= c.max_real_length_m:
+            raise InputError(f"--scale {scale:g}: the truck would be {real:.4g} m long, not a road vehicle "
+                             f"({c.min_real_length_m:g}-{c.max_real_length_m:g} m); --scale is the model-to-real factor "
+                             "(e.g. 14 for a 1:14 model); for a cloud in other units use --units m|cm|mm")
+
+
+def check_centre(m, centre_in: np.ndarray, source: str, config: TruckQualityConfig = TruckQualityConfig()) -> None:
+    """Refuse a ``--centre`` (input frame, metres) that is far from the truck chosen (and so from every candidate)."""
+    c_g = m.frame_rotation @ np.asarray(centre_in, float) + m.frame_translation
+    rect = np.asarray(m.details["rectangle_xy_m"], float)
+    lo, hi = rect.min(axis=0), rect.max(axis=0)
+    dist = float(np.linalg.norm(np.maximum(0.0, np.maximum(lo - c_g[:2], c_g[:2] - hi))))
+    if dist > config.max_centre_offset_rel * m.length_m:
+        raise InputError(f"--centre {','.join(f'{v:g}' for v in centre_in)}: {dist:.1f} m from the nearest truck-like "
+                         f"cluster in {source} (a {m.length_m:.2f} m truck): no vehicle there")
+
+
+def _truck_axes(m):
+    """Truck points in its own axes: along the length a, across b, height z; and the edges."""
+    d = m.details
+    xy = m.truck_xyz_ground[:, :2] - np.asarray(d["origin_xy_m"])
+    a = xy @ np.asarray(d["axes_xy"]["length"])
+    b = xy @ np.asarray(d["axes_xy"]["width"])
+    return a, b, m.truck_xyz_ground[:, 2], d["edges_m"]["length"], d["edges_m"]["width"]
+
+
+def _coverage(along: np.ndarray, up: np.ndarray, span: tuple[float, float], height: float, grid) -> float:
+    """Share of a face's grid cells (10-90 % of its span and of the height) that hold at least one point.
+
+    The outer tenth at each side is left out: there the neighbouring faces (a side wall's end at a
+    rear face that was never seen) would fill the cells.
+    """
+    n_along, n_up = grid
+    s0, s1 = span[0] + 0.1 * (span[1] - span[0]), span[1] - 0.1 * (span[1] - span[0])
+    i = np.floor((along - s0) / max(s1 - s0, 1e-12) * n_along).astype(int)
+    j = np.floor((up - 0.1 * height) / (0.8 * height) * n_up).astype(int)
+    ok = (i >= 0) & (i < n_along) & (j >= 0) & (j < n_up)
+    return len(set(zip(i[ok].tolist(), j[ok].tolist()))) / float(n_along * n_up)
+
+
+def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[dict]:
+    """Per-face point support: front/rear (length), both side walls (width), roof (height)."""
+    c = config
+    a, b, z, (l0, l1), (w0, w1) = _truck_axes(m)
+    res = float(m.parameters["resolved"]["resolution_m"])
+    H = m.height_m
+    band_end = max(c.face_band_rel * m.length_m, c.face_band_res * res)
+    band_side = max(c.face_band_rel * m.width_m, c.face_band_res * res)
+    cover = {
+        "rear": _coverage(b[np.abs(a - l0) <= band_end], z[np.abs(a - l0) <= band_end], (w0, w1), H, (c.face_grid[1] * 2, c.face_grid[1])),
+        "front": _coverage(b[np.abs(a - l1) <= band_end], z[np.abs(a - l1) <= band_end], (w0, w1), H, (c.face_grid[1] * 2, c.face_grid[1])),
+        "right": _coverage(a[np.abs(b - w0) <= band_side], z[np.abs(b - w0) <= band_side], (l0, l1), H, c.face_grid),
+        "left": _coverage(a[np.abs(b - w1) <= band_side], z[np.abs(b - w1) <= band_side], (l0, l1), H, c.face_grid),
+    }
+    out = []
+    for dim, faces in (("length", ("front", "rear")), ("width", ("left", "right"))):
+        low = [f for f in faces if cover[f] < c.min_face_coverage]
+        txt = ", ".join(f"{f} {100 * cover[f]:.0f}%" for f in faces)
+        out.append(_check(f"faces_{dim}", "fail" if low else "pass",
+                          f"{txt} of the face covered (need {100 * c.min_face_coverage:.0f}%)"
+                          + (f": {' and '.join(low)} not seen, the {dim} is not bounded" if low else "")))
+    roof = float(m.details.get("roof_support") or 0.0)
+    status = "fail" if roof < c.min_roof_support else ("warn" if roof < 0.10 else "pass")
+    out.append(_check("faces_height", status, f"{100 * roof:.1f}% of the truck's points at the roof level"
+                      + (": the roof was not seen, the height is not bounded" if status == "fail" else "")))
+    return out
+
+
+def orbit_checks(m, camera_centres: np.ndarray, config: TruckQualityConfig = TruckQualityConfig()) -> list[dict]:
+    """Orbit arc around the truck, from camera centres (N, 3; cloud frame, m)."""
+    c = config
+    d = m.details
+    centres = np.asarray(camera_centres, float).reshape(-1, 3) @ m.frame_rotation.T + m.frame_translation
+    mid_a, mid_b = np.mean(d["edges_m"]["length"]), np.mean(d["edges_m"]["width"])
+    truck_xy = np.asarray(d["origin_xy_m"]) + mid_a * np.asarray(d["axes_xy"]["length"]) + mid_b * np.asarray(d["axes_xy"]["width"])
+    rel = centres[:, :2] - truck_xy
+    az = np.sort(np.degrees(np.arctan2(rel[:, 1], rel[:, 0])))
+    gaps = np.diff(np.concatenate([az, az[:1] + 360.0])) if len(az) > 1 else np.array([360.0])
+    arc = float(360.0 - gaps.max())
+    status = "fail" if arc < c.min_orbit_arc_deg else ("warn" if arc < c.warn_orbit_arc_deg else "pass")
+    out = [_check("orbit_arc", status, f"the cameras cover {arc:.0f} deg around the truck ({len(centres)} poses)"
+                  + ("; the faces away from the cameras were seen obliquely or not at all" if status != "pass" else ""))]
+    return out
+
+
+# Which dimensions a failed check leaves unbounded (others: all of them).
+_CHECK_DIMENSIONS = {"faces_length": ("length",), "faces_width": ("width",), "faces_height": ("height",)}
+
+
+def data_quality(checks: list[dict]) -> dict:
+    """The ``data_quality`` block: ok unless a check failed."""
+    return {"ok": not any(ch["status"] == "fail" for ch in checks), "checks": list(checks)}
+
+
+def apply_data_quality(verdict: dict, checks: list[dict]) -> dict:
+    """The verdict with every failed gate applied: the dimensions it leaves unbounded and the overall
+    verdict become ``undecided``, the reason names the failed checks. Unchanged when all pass."""
+    failed = [ch for ch in checks if ch["status"] == "fail"]
+    if not failed:
+        return verdict
+    for ch in failed:
+        for dim in _CHECK_DIMENSIONS.get(ch["name"], ("length", "width", "height")):
+            entry = (verdict.get("dimensions") or {}).get(dim)
+            if entry is not None and entry.get("verdict") in ("over", "within"):
+                entry["verdict"] = "undecided"
+    verdict["overall"] = "undecided"
+    verdict["reason"] = "data quality: " + "; ".join(f"{ch['name']}: {ch['detail']}" for ch in failed)
+    return verdict

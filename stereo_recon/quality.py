@@ -1,0 +1,192 @@
+"""Data-quality gates of a recording: what the frames and the reconstruction say about the input.
+
+Before the reconstruction (a few frames, seconds): are the two eyes different images, in the right
+order, and does the calibration fit them (its size, and whether the frames are already rectified,
+as ``calib-check`` judges it)? After it (``run.json``): were all the frames decoded? A gate is a
+check ``{"name", "status": "pass" | "warn" | "fail", "detail"}`` (the ``data_quality`` contract of
+``measurement.json``); where nothing can be measured at all the recording is refused (InputError).
+The orbit, camera-motion and per-face checks need the measured truck: ``measure.quality``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from stereo_recon.errors import InputError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RecordingQualityConfig:
+    """Thresholds of the recording gates."""
+
+    check_frames: int = 3                  # frames spread over the selection, matched eye to eye before the run
+    identical_eyes_max_diff: float = 0.5   # mean |left - right| (grey levels, 0-255) below which the eyes are one image
+    swapped_min_fraction: float = 0.8      # raw matches with negative disparity above this share: eyes swapped
+    min_decoded_fraction: float = 0.95     # decoded frames / frames the container announces, below: incomplete orbit
+    min_parallax_deg: float = 5.0          # camera travel seen from the scene (deg), below: a static camera
+
+
+def check(name: str, status: str, detail: str) -> dict:
+    """One data-quality check in the ``measurement.json`` contract."""
+    return {"name": name, "status": status, "detail": detail}
+
+
+def sample_pairs(source, n: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """``n`` (name, left, right) frames spread over a stereo source's selection; undecodable ones are skipped."""
+    import cv2
+
+    from stereo_recon.video import SideBySideVideo, split_side_by_side
+
+    idx = list(source.selected_indices())
+    if not idx:
+        return []
+    want = sorted({idx[int(round(i))] for i in np.linspace(0, len(idx) - 1, min(n, len(idx)))})
+    pairs = []
+    if isinstance(source, SideBySideVideo):
+        cap = cv2.VideoCapture(str(source.path))
+        try:
+            for i in want:
+                cap.set(cv2.CAP_PROP_POS_FRAMES, i)
+                ok, frame = cap.read()
+                if ok and frame is not None:
+                    left, right = split_side_by_side(frame, f"{source.path} frame {i}")
+                    pairs.append((f"frame {i}", left, right))
+        finally:
+            cap.release()
+        return pairs
+    for frame in source:
+        if frame.index in want:
+            pairs.append((f"frame {frame.index}", frame.left, frame.right))
+        if frame.index >= want[-1]:
+            break
+    return pairs
+
+
+def _calibration_size(calib, rig) -> tuple[int, int]:
+    """The eye size the calibration was made for, before any scaling to the video."""
+    from calib.io import parse_calib_arg
+    from calib.zedconf import ZED_RESOLUTIONS
+
+    res = rig.metadata.get("zed_resolution")
+    if str(calib).lower().endswith(".conf") and res in ZED_RESOLUTIONS:
+        return tuple(ZED_RESOLUTIONS[res])
+    try:
+        return tuple(parse_calib_arg(str(calib)).image_size)
+    except InputError:  # inline parameters without a size: made for the video's own
+        return tuple(rig.image_size)
+
+
+def _rectified_rig(rig):
+    """The rectified camera of a raw calibration (OpenCV's stereoRectify, alpha 0) as a rectified rig, and
+    its ``--calib`` text: what an exporter that rectifies with the same calibration gives."""
+    from calib.rig import StereoRig
+
+    rect = rig.rectification(alpha=0.0)
+    K = rect.K_rect
+    text = f"--calib {K[0, 0]:.3f},{K[1, 1]:.3f},{K[0, 2]:.3f},{K[1, 2]:.3f},{rect.baseline_m:.6f}"
+    return StereoRig.from_rectified(K[0, 0], K[1, 1], K[0, 2], K[1, 2], rect.baseline_m, rig.image_size,
+                                    source=f"rectified camera of {rig.metadata.get('source', 'the calibration')}"), text
+
+
+def check_recording(source, rig, rcfg, calib, config: RecordingQualityConfig = RecordingQualityConfig()):
+    """Gates on a few frames before the reconstruction; returns (rig, reconstruct config, checks).
+
+    source: an opened ``StereoSource``; rig: the calibration scaled to it; rcfg: ``ReconstructConfig``;
+    calib: the ``--calib`` value (for messages). Frames that are already rectified but given a raw
+    calibration are reconstructed as rectified (left intrinsics, ``rcfg.rectified``), with a warning.
+    Raises InputError where nothing could be measured: identical or swapped eyes, a calibration whose
+    rows do not fit (of another size, or raw/rectified the wrong way round).
+    """
+    from calib.check import check_pairs
+
+    pairs = sample_pairs(source, config.check_frames)
+    if not pairs:
+        raise InputError(f"{source.path}: no decodable frame in the selected range")
+    checks = []
+    diff = float(np.mean([np.abs(l.astype(np.int16) - r.astype(np.int16)).mean() for _, l, r in pairs]))
+    if diff < config.identical_eyes_max_diff:
+        raise InputError(f"{source.path}: both eyes identical (left and right halves differ by {diff:.2f} grey levels "
+                         f"on average over {len(pairs)} frames): not a stereo recording, nothing can be measured")
+    checks.append(check("eyes_distinct", "pass", f"left and right differ by {diff:.1f} grey levels on average"))
+    res = check_pairs(pairs, rig)
+    raw, verdict = res["raw"], res["verdict"]
+    if verdict == "swapped_eyes" or (raw["matches"] >= 20 and raw["negative_disparity_fraction"] > config.swapped_min_fraction):
+        raise InputError(f"{source.path}: eyes swapped: {100 * raw['negative_disparity_fraction']:.0f}% of "
+                         f"{raw['matches']} matched features sit further left in the left half than in the right half (negative disparity); "
+                         "the left eye must be the left half (swap the halves of the video)")
+    checks.append(check("eye_order", "pass" if raw["matches"] >= 20 else "warn",
+                        f"{100 * (1 - raw['negative_disparity_fraction']):.0f}% of {raw['matches']} matches have a "
+                        "positive disparity" if raw["matches"] else "no feature matches to check the eye order"))
+    cal_size, eye = _calibration_size(calib, rig), tuple(source.eye_size)
+    size_txt = f"the calibration is for {cal_size[0]}x{cal_size[1]}, the video's eyes are {eye[0]}x{eye[1]}"
+    if verdict == "calibration_mismatch":
+        if cal_size == eye:
+            raise InputError(f"{calib}: does not fit {source.path}: {res['message']}")
+        raise InputError(f"{calib}: does not fit {source.path}: rows of matched features disagree both raw (median "
+                         f"{raw['median_dy_px']:.2f} px) and rectified (median {res['rectified']['median_dy_px']:.2f} px); "
+                         f"{size_txt}; pass the calibration made for {eye[0]}x{eye[1]}")
+    if verdict == "not_rectified":
+        raise InputError(f"{calib}: {res['message']}")
+    if rcfg.rectified and verdict == "ok" and raw["median_dy_px"] > res["thresholds"]["median_px"]:
+        raise InputError(f"--rectified: the frames of {source.path} are not rectified (rows of matched features differ by "
+                         f"median {raw['median_dy_px']:.2f} px; {calib}'s rectification brings them to "
+                         f"{res['rectified']['median_dy_px']:.2f} px): drop --rectified")
+    checks.append(check("calibration_size", "pass" if cal_size == eye else "warn",
+                        size_txt if cal_size != eye else f"calibration and video are both {eye[0]}x{eye[1]}"))
+    if verdict == "already_rectified" and not rcfg.rectified:
+        rig, hint = _rectified_rig(rig)
+        detail = (f"the video is already rectified (raw rows agree: median |dy| {raw['median_dy_px']:.2f} px; rectified "
+                  f"again {res['rectified']['median_dy_px']:.2f} px) but {calib} is a raw calibration: reconstructed "
+                  f"with the rectified camera this calibration gives ({hint}); if the exporter's rectified camera "
+                  "differs, pass it as --calib fx,fy,cx,cy,baseline_m")
+        log.warning("%s", detail)
+        checks.append(check("rectification", "warn", detail))
+    elif verdict == "inconclusive":
+        checks.append(check("rectification", "warn", f"calibration not checked on the frames: {res['message']}"))
+    else:
+        checks.append(check("rectification", "pass", res["message"]))
+    return rig, rcfg, checks
+
+
+def camera_motion_check(run: dict, centres: np.ndarray | None, config: RecordingQualityConfig = RecordingQualityConfig()):
+    """How far the camera moved, seen from the scene (deg of parallax): a static camera has no views around the truck.
+
+    run: ``run.json`` (the first view's disparity, focal length and baseline give the scene depth);
+    centres: camera centres (N, 3), metres. None when either is missing.
+    """
+    counts, rect = run.get("counts") or {}, ((run.get("rig") or {}).get("rectified") or {})
+    disp, f, B = counts.get("first_view_disparity_px"), rect.get("focal_px"), rect.get("baseline_m")
+    if centres is None or not len(centres) or not (disp and f and B):
+        return None
+    depth = float(f) * float(B) / float(disp)
+    spread = float(np.linalg.norm(np.ptp(np.asarray(centres, float), axis=0)))
+    parallax = float(np.degrees(spread / max(depth, 1e-9)))
+    if parallax < config.min_parallax_deg:
+        return check("camera_motion", "fail", f"the camera moved {spread:.3g} m over the recording, {parallax:.1f} deg seen "
+                                              f"from the scene {depth:.3g} m away: a static camera has no views around "
+                                              "the truck, so its far faces are not measured")
+    return check("camera_motion", "pass", f"the camera moved {spread:.3g} m, {parallax:.0f} deg seen from the scene "
+                                          f"{depth:.3g} m away")
+
+
+def checks_from_reconstruction(run: dict, config: RecordingQualityConfig = RecordingQualityConfig()) -> list[dict]:
+    """Gates from a reconstruction's ``run.json``: frames decoded against what the container announces."""
+    src, counts = run.get("source") or {}, run.get("counts") or {}
+    fc = int(src.get("frame_count") or 0)
+    decoded = int(counts.get("frames_read", 0))
+    bad = len(counts.get("bad_frames") or [])
+    if fc <= 0:
+        return [check("frames_decoded", "warn", f"{decoded} frames decoded; the container does not say how many it holds")]
+    start, stop, step = int(src.get("start") or 0), src.get("stop"), int(src.get("step") or 1)
+    expected = len(range(start, fc if stop is None else min(int(stop), fc), step))
+    if decoded < config.min_decoded_fraction * expected:
+        return [check("frames_decoded", "fail", f"only {decoded} of the {expected} frames the video announces were "
+                                                 "decoded: the file ends early or is damaged, so the orbit is incomplete")]
+    if bad:
+        return [check("frames_decoded", "warn", f"{decoded} of {expected} frames decoded; {bad} undecodable and skipped")]
+    return [check("frames_decoded", "pass", f"{decoded} of {expected} frames decoded")]

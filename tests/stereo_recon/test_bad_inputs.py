@@ -1,0 +1,354 @@
+"""``run``, ``reconstruct``, ``batch``, ``bench`` and ``calib-check`` on bad or awkward input.
+
+Each case asserts the exit code, the one-line message (no traceback) and what is or is not left on
+disk. Plain mistakes are refused before any reconstruction; recordings that are readable but wrong
+(swapped or identical eyes, a calibration of another size, an already rectified video, a cut file,
+a static camera) are refused or reach the verdict through the data-quality gates. One real run of
+the bundled sample is shared by the module (resume, determinism, a good folder kept intact).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stereo_recon.cli import main
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: shared helpers (importlib import mode)
+from cli_outcome import folder_state, no_temp_left, refused  # noqa: E402
+from sample_variants import SAMPLE_CONF, SAMPLE_VIDEO, read_pairs, rectified_pairs, write_video  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def videos(tmp_path_factory):
+    """Short variants of the sample: swapped eyes, identical eyes, a static camera, rectified, cut in half."""
+    d = tmp_path_factory.mktemp("videos")
+    pairs = read_pairs(6, step=8)
+    rect, calib_text = rectified_pairs(pairs[:3])
+    data = SAMPLE_VIDEO.read_bytes()
+    (d / "half.avi").write_bytes(data[: len(data) // 2])
+    (d / "not_video.avi").write_text("hello")
+    return {"swapped": write_video(d / "swapped.avi", [(r, l) for l, r in pairs]),
+            "identical": write_video(d / "identical.avi", [(l, l) for l, _ in pairs]),
+            "static": write_video(d / "static.avi", [pairs[0]] * 16),
+            "rectified": write_video(d / "rectified.avi", rect), "rectified_calib": calib_text,
+            "half": d / "half.avi", "not_video": d / "not_video.avi"}
+
+
+@pytest.fixture(scope="module")
+def rigs(tmp_path_factory):
+    """Calibration files: a .conf with fx = 0, one with the baseline +10 %, 1920x1080 rigs (exact, misfit)."""
+    from calib.io import load_rig, save_rig
+
+    d = tmp_path_factory.mktemp("rigs")
+    text = SAMPLE_CONF.read_text()
+    (d / "fx0.conf").write_text("\n".join("fx=0" if line.startswith("fx=") else line for line in text.splitlines()))
+    lines = []
+    for line in text.splitlines():
+        if line.startswith("Baseline="):
+            line = f"Baseline={float(line.split('=')[1]) * 1.1!r}"
+        lines.append(line)
+    (d / "SN28000001.conf").write_text("\n".join(lines))
+    rig = load_rig(SAMPLE_CONF, image_size=(1280, 720)).scaled((1920, 1080))
+    save_rig(rig, d / "fhd.yaml")
+    a = np.radians(1.0)   # the right eye turned by 1 deg about x: rows 9 px apart after rectification
+    Rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    save_rig(replace(rig, R=Rx @ rig.R), d / "fhd_misfit.yaml")
+    return {"fx0": d / "fx0.conf", "baseline110": d / "SN28000001.conf", "fhd": d / "fhd.yaml",
+            "fhd_misfit": d / "fhd_misfit.yaml"}
+
+
+@pytest.fixture(scope="module")
+def good_run(tmp_path_factory):
+    """One real run of the bundled sample: (out folder, its file hashes, measurement.json bytes)."""
+    out = tmp_path_factory.mktemp("run") / "out"
+    assert main(["-q", "run", "--out", str(out)]) == 0
+    return out, folder_state(out), (out / "measurement.json").read_bytes()
+
+
+# ---- options, files, tables, configs: refused before any work ---------------------------------------
+
+RUN_BAD = [
+    (["--scale", "nan"], "--scale nan"), (["--scale", "inf"], "--scale inf"), (["--scale", "0"], "--scale 0"),
+    (["--regulation", "BAD"], "unknown regulation"), (["--vehicle-class", "bogus"], "unknown vehicle class 'bogus'"),
+    (["--reconstruction-sigma-pct", "nan,1,1"], "--reconstruction-sigma-pct"),
+    (["--calib", "0,500,640,360,0.12"], "fx and fy must be > 0"),
+    (["--calib", "/nonexistent/SN1.conf"], "file not found"),
+]
+
+
+@pytest.mark.parametrize("argv, pattern", RUN_BAD)
+def test_run_refuses_bad_option_before_any_work(tmp_path, capsys, argv, pattern):
+    out = tmp_path / "out"
+    calib = [] if "--calib" in argv else ["--calib", SAMPLE_CONF]
+    refused(capsys, ["run", SAMPLE_VIDEO, *calib, "--out", out, *argv], pattern)
+    assert not out.exists()
+    no_temp_left(tmp_path)
+
+
+def test_run_refuses_bad_config_file_naming_it(tmp_path, capsys):
+    cfg = tmp_path / "measure.yaml"
+    cfg.write_text("eps_m: 0.05\nnot_a_key: 2\n")
+    refused(capsys, ["run", "--out", tmp_path / "out", "--config", cfg], f"{cfg}: unknown key(s) not_a_key")
+    assert not (tmp_path / "out").exists()
+
+
+def test_conf_with_zero_focal_names_file_and_section(tmp_path, capsys, rigs):
+    refused(capsys, ["run", SAMPLE_VIDEO, "--calib", rigs["fx0"], "--out", tmp_path / "out"],
+            f"{rigs['fx0']}: [LEFT_CAM_HD] fx = 0")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("which, pattern", [("missing", "no such file"), ("not_video", "cannot open as a video")])
+def test_run_refuses_bad_video(tmp_path, capsys, videos, which, pattern):
+    video = tmp_path / "none.avi" if which == "missing" else videos[which]
+    refused(capsys, ["run", video, "--calib", SAMPLE_CONF, "--out", tmp_path / "out"], pattern)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("command", ["run", "reconstruct", "calib-check"])
+@pytest.mark.parametrize("where", ["under_file", "proc"])
+def test_output_path_problem_is_one_line(tmp_path, capsys, command, where):
+    f = tmp_path / "file.txt"
+    f.write_text("x")
+    out = f / "out" if where == "under_file" else Path("/proc/x")
+    if command == "calib-check":
+        out = out.with_name("check.json")
+    argv = {"run": ["run", SAMPLE_VIDEO, "--calib", SAMPLE_CONF, "--out", out],
+            "reconstruct": ["reconstruct", SAMPLE_VIDEO, "--calib", SAMPLE_CONF, "--out", out],
+            "calib-check": ["calib-check", SAMPLE_VIDEO, "--calib", SAMPLE_CONF, "--frames", "1", "--out", out]}[command]
+    refused(capsys, argv, "is a file, not a folder" if where == "under_file" else "cannot write in /proc")
+    assert f.read_text() == "x"
+    no_temp_left(tmp_path)
+
+
+RECONSTRUCT_BAD = [(["--fps", "0"], "--fps 0"), (["--fps", "nan"], "--fps nan"), (["--voxel-m", "nan"], "--voxel-m nan"),
+                   (["--depth-min-m", "nan"], "--depth-min-m nan"), (["--depth-max-m", "inf"], "--depth-max-m inf"),
+                   (["--step", "0"], "--step 0"), (["--frames", "9:3"], "STOP must be greater than START")]
+
+
+@pytest.mark.parametrize("argv, pattern", RECONSTRUCT_BAD)
+def test_reconstruct_refuses_bad_option(tmp_path, capsys, argv, pattern):
+    out = tmp_path / "out"
+    refused(capsys, ["reconstruct", SAMPLE_VIDEO, "--calib", SAMPLE_CONF, "--out", out, *argv], pattern)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv, pattern", [
+    (["bench", "--workers", "0"], "--workers 0"), (["bench", "--frames", "0"], "--frames 0"),
+    (["batch", str(SAMPLE_VIDEO), "--calib", str(SAMPLE_CONF), "--workers", "0"], "--workers 0"),
+    (["batch", str(SAMPLE_VIDEO), "--calib", str(SAMPLE_CONF), "--regulation", "BAD"], "unknown regulation")])
+def test_bench_and_batch_refuse_bad_numbers(tmp_path, capsys, argv, pattern):
+    out = tmp_path / "out"
+    refused(capsys, [*argv, "--out", out], pattern)
+    assert not out.exists()
+
+
+# ---- recordings that are readable but wrong ---------------------------------------------------------
+
+def test_swapped_eyes_named(tmp_path, capsys, videos):
+    refused(capsys, ["run", videos["swapped"], "--calib", SAMPLE_CONF, "--out", tmp_path / "out"], "eyes swapped")
+    assert not (tmp_path / "out").exists()
+
+
+def test_identical_eyes_named(tmp_path, capsys, videos):
+    refused(capsys, ["run", videos["identical"], "--calib", SAMPLE_CONF, "--out", tmp_path / "out"],
+            "both eyes identical")
+    assert not (tmp_path / "out").exists()
+
+
+def test_rectified_flag_on_raw_frames_refused(tmp_path, capsys):
+    refused(capsys, ["run", SAMPLE_VIDEO, "--calib", SAMPLE_CONF, "--rectified", "--out", tmp_path / "out"],
+            "the frames of")
+    assert not (tmp_path / "out").exists()
+
+
+def test_calibration_of_another_size_that_does_not_fit(tmp_path, capsys, rigs):
+    err = refused(capsys, ["run", SAMPLE_VIDEO, "--calib", rigs["fhd_misfit"], "--out", tmp_path / "out"],
+                  "the calibration is for 1920x1080, the video's eyes are 1280x720")
+    assert "pass the calibration made for 1280x720" in err
+    assert not (tmp_path / "out").exists()
+
+
+def _source_and_rig(video, calib):
+    from calib.io import parse_calib_arg
+    from stereo_recon.reconstruct import ReconstructConfig
+    from stereo_recon.video import open_stereo_source
+
+    source = open_stereo_source(video)
+    return source, parse_calib_arg(str(calib), image_size=source.eye_size), ReconstructConfig()
+
+
+def test_calibration_of_another_size_that_fits_is_a_warning(rigs):
+    from stereo_recon.quality import check_recording
+
+    source, rig, rcfg = _source_and_rig(SAMPLE_VIDEO, rigs["fhd"])
+    _, _, checks = check_recording(source, rig, rcfg, rigs["fhd"])
+    by = {c["name"]: c for c in checks}
+    assert by["calibration_size"]["status"] == "warn"
+    assert "1920x1080" in by["calibration_size"]["detail"] and by["rectification"]["status"] == "pass"
+
+
+def test_already_rectified_video_uses_the_rectified_camera(videos):
+    from stereo_recon.quality import check_recording
+
+    source, rig, rcfg = _source_and_rig(videos["rectified"], SAMPLE_CONF)
+    rig2, _, checks = check_recording(source, rig, rcfg, SAMPLE_CONF)
+    rect = {c["name"]: c for c in checks}["rectification"]
+    assert rect["status"] == "warn" and "already rectified" in rect["detail"]
+    fx, fy, cx, cy, b = (float(v) for v in videos["rectified_calib"].split(","))
+    assert rig2.rectified and rig2.K1[0, 0] == pytest.approx(fx, abs=1e-3) and rig2.baseline_m == pytest.approx(b, abs=1e-6)
+    assert f"--calib {rig2.K1[0, 0]:.3f},{rig2.K1[1, 1]:.3f}" in rect["detail"]
+
+
+def test_cut_video_reports_the_real_decoded_count(videos, caplog):
+    from stereo_recon.quality import checks_from_reconstruction
+    from stereo_recon.video import open_stereo_source
+
+    source = open_stereo_source(videos["half"])
+    with caplog.at_level(logging.WARNING):
+        n = sum(1 for _ in source)
+    assert n < 0.7 * source.frame_count
+    assert f"({n} frames decoded)" in caplog.text
+    (c,) = checks_from_reconstruction({"source": source.describe(), "counts": {"frames_read": n, "bad_frames": []}})
+    assert c["status"] == "fail" and f"only {n} of the 48 frames" in c["detail"]
+
+
+@pytest.mark.slow
+def test_cut_video_run_ends_undecided_with_the_reason(tmp_path, capsys, videos):
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(videos["half"]), "--calib", str(SAMPLE_CONF), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    m = json.loads((out / "measurement.json").read_text())
+    by = {c["name"]: c for c in m["data_quality"]["checks"]}
+    assert by["frames_decoded"]["status"] == "fail" and "of the 48 frames" in by["frames_decoded"]["detail"]
+    assert m["data_quality"]["ok"] is False and m["verdict"]["overall"] == "undecided"
+    assert "frames_decoded" in m["verdict"]["reason"] and "data quality: FAILED (frames_decoded" in printed
+    assert json.loads((out / "job.json").read_text())["data_quality"]["ok"] is False
+
+
+def test_failed_gate_turns_any_verdict_undecided():
+    from measure.quality import apply_data_quality
+
+    for overall in ("over", "within", "not-applicable"):
+        v = {"overall": overall, "reason": "", "dimensions": {d: {"verdict": overall} for d in ("length", "width", "height")}}
+        out = apply_data_quality(v, [{"name": "camera_motion", "status": "fail", "detail": "static camera"}])
+        assert out["overall"] == "undecided" and "camera_motion: static camera" in out["reason"]
+        assert all(e["verdict"] not in ("over", "within") for e in out["dimensions"].values())
+
+
+def test_static_camera_refused_with_cause(tmp_path, capsys, videos):
+    out = tmp_path / "out"
+    rc = main(["-q", "run", str(videos["static"]), "--calib", str(SAMPLE_CONF), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert "static camera" in err
+    job = json.loads((out / "job.json").read_text())
+    assert job["data_quality"]["ok"] is False and job["stages"]["measure"]["status"] == "failed"
+    assert not (out / "measurement.json").exists()   # the reconstruction is kept, no verdict is
+    no_temp_left(tmp_path)
+
+
+# ---- transactions --------------------------------------------------------------------------------
+
+def test_sigkill_leaves_temp_that_the_next_run_removes(tmp_path, capsys):
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen([sys.executable, "-m", "stereo_recon.cli", "-q", "reconstruct", str(SAMPLE_VIDEO), "--calib",
+                             str(SAMPLE_CONF), "--out", str(out)], env=env, cwd=REPO)
+    deadline = time.time() + 120
+    temps: list[Path] = []
+    while time.time() < deadline and not temps:
+        temps = [p for p in tmp_path.iterdir() if p.name.startswith(f".out.tmp-{proc.pid}-")]
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert temps and temps[0].exists() and not out.exists()
+    from measure.cloud_io import write_cloud
+    from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
+
+    cloud = write_cloud(tmp_path / "truck.ply", make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01), rng=1)[0])
+    assert main(["measure", str(cloud), "--out", str(out), "--no-plots"]) == 0
+    assert not temps[0].exists()
+    no_temp_left(tmp_path)
+
+
+@pytest.mark.parametrize("argv, pattern", [(["--regulation", "BAD"], "unknown regulation"),
+                                           (["--vehicle-class", "bogus"], "unknown vehicle class"),
+                                           (["--scale", "nan"], "--scale nan")])
+def test_bad_option_into_good_folder_leaves_it_exactly(good_run, capsys, argv, pattern):
+    out, state, _ = good_run
+    refused(capsys, ["run", "--out", out, *argv], pattern)
+    assert folder_state(out) == state
+    no_temp_left(out.parent)
+
+
+def test_bad_config_into_good_folder_leaves_it_exactly(good_run, tmp_path, capsys):
+    out, state, _ = good_run
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("eps_m = [1\n")
+    refused(capsys, ["run", "--out", out, "--config", cfg], f"{cfg}: cannot parse config")
+    assert folder_state(out) == state
+
+
+def test_good_run_has_data_quality_and_summary_line(good_run):
+    out, _, data = good_run
+    m = json.loads(data)
+    assert m["data_quality"]["ok"] is True
+    names = {c["name"] for c in m["data_quality"]["checks"]}
+    assert {"eyes_distinct", "eye_order", "calibration_size", "rectification", "frames_decoded", "camera_motion",
+            "faces_length", "faces_width", "faces_height", "orbit_arc"} <= names
+    assert m["input"]["path"] == str(out.resolve() / "cloud.ply")
+    assert b"created_utc" not in data and b"tmp-" not in data
+
+
+@pytest.mark.slow
+def test_resume_reuses_same_and_redoes_truncated_with_identical_bytes(good_run, tmp_path, caplog):
+    out0, _, data = good_run
+    out = tmp_path / "out"
+    shutil.copytree(out0, out)
+    with caplog.at_level(logging.INFO):
+        assert main(["-q", "run", "--out", str(out), "--resume"]) == 0
+    assert json.loads((out / "job.json").read_text())["stages"]["reconstruct"]["status"] == "reused"
+    cloud = out / "cloud.ply"
+    cloud.write_bytes(cloud.read_bytes()[: cloud.stat().st_size - 20_000 * 27])
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert main(["-q", "run", "--out", str(out), "--resume"]) == 0
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("resume:")]
+    assert len(lines) == 1 and "cloud.ply is" in lines[0] and "(truncated or modified)" in lines[0], lines
+    assert json.loads((out / "job.json").read_text())["stages"]["reconstruct"]["status"] == "done"
+    # Recomputed from scratch: the same measurement.json bytes (determinism of run), the folder's name aside.
+    assert (out / "measurement.json").read_bytes() == data.replace(str(out0.resolve()).encode(), str(out.resolve()).encode())
+
+
+@pytest.mark.slow
+def test_resume_after_calibration_change_recomputes(good_run, rigs, tmp_path, caplog):
+    out0, _, data = good_run
+    out = tmp_path / "out"
+    shutil.copytree(out0, out)
+    with caplog.at_level(logging.WARNING):
+        assert main(["-q", "run", str(SAMPLE_VIDEO), "--calib", str(rigs["baseline110"]), "--out", str(out),
+                     "--resume"]) == 0
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("resume:")]
+    assert len(lines) == 1 and "the calibration changed" in lines[0], lines
+    run = json.loads((out / "run.json").read_text())
+    job = json.loads((out / "job.json").read_text())
+    new_sha = hashlib.sha256(rigs["baseline110"].read_bytes()).hexdigest()
+    assert run["inputs"]["calib"]["sha256"] == new_sha == job["fingerprint"]["calib"]["sha256"]
+    assert job["length_m"] == pytest.approx(1.1 * json.loads(data)["length_m"], rel=0.02)
