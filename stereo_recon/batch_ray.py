@@ -84,7 +84,8 @@ def connect(options: RayOptions, workers: int | None) -> bool:
     with _stderr_captured() as noise:  # Ray's C++ core retries loudly on stderr while it connects
         try:
             if address:
-                ray.init(address=address, **quiet)
+                # Ray Client (ray://) takes no driver-side settings: they would go to the cluster's init.
+                ray.init(address=address, **({} if address.startswith("ray://") else quiet))
             else:
                 # address='local' always starts a fresh instance, even beside a cluster running on this machine.
                 cpus = None if workers is None else max(1, round(workers * options.cpus_per_job))
@@ -130,6 +131,32 @@ def _last_message(text: str) -> str:
     if not lines:
         return ""
     return re.sub(r"^\[[^\]]*\]\s*\S+:\d+:\s*", "", lines[-1])
+
+
+@contextlib.contextmanager
+def _ray_messages_to_log():
+    """Route the messages Ray's driver prints about failed workers (stdout, many lines) to this module's
+    log: every failure is already reported once, in one line, with its job."""
+    try:
+        from ray._private import worker as ray_worker
+
+        original = ray_worker.print_to_stdstream
+    except (ImportError, AttributeError):  # another Ray layout: leave its printing alone
+        yield
+        return
+
+    def to_log(data, ignore_prefix=False):
+        if data.get("pid") == "raylet":
+            for line in data.get("lines", []):
+                log.debug("ray: %s", line)
+        else:
+            original(data, ignore_prefix=ignore_prefix)
+
+    ray_worker.print_to_stdstream = to_log
+    try:
+        yield
+    finally:
+        ray_worker.print_to_stdstream = original
 
 
 def _check_feasible(ray, options: RayOptions, address: str | None) -> None:
@@ -265,12 +292,22 @@ def land(reply: dict) -> dict:
 
 
 def _ray_error_line(err: BaseException) -> str:
-    """One line for a Ray-side failure (worker crash, lost node, unimportable package, ...)."""
+    """One line for a Ray-side failure (worker crash, lost node, package missing on a node, ...).
+
+    Ray packs a remote traceback into its messages: keep the traceback's last line (the error
+    itself) and the first sentence of Ray's own words.
+    """
     cause = getattr(err, "cause", None)
-    if isinstance(cause, BaseException) and cause is not err:
-        return one_line(cause)
-    lines = [ln.strip() for ln in str(err).splitlines() if ln.strip() and not ln.startswith("Traceback")]
-    return f"{type(err).__name__}: {lines[0]}" if lines else type(err).__name__
+    base = cause if isinstance(cause, BaseException) and cause is not err else err
+    lines = [ln.strip() for ln in str(base).splitlines() if ln.strip()]
+    starts = [i for i, ln in enumerate(lines) if ln.startswith("Traceback (most recent call last)")]
+    if not starts:
+        return one_line(base)
+    final = lines[-1]
+    intro = " ".join(lines[:starts[0]]).split(". ")[0].rstrip(":. ")
+    if "ModuleNotFoundError" in final or "ImportError" in final:
+        intro += "; is the same stereo-recon installed on every node?"
+    return f"{final} ({intro})" if intro else final
 
 
 def run_jobs_ray(jobs: Sequence[Job], options: RayOptions, workers: int | None = None,
@@ -308,31 +345,37 @@ def run_jobs_ray(jobs: Sequence[Job], options: RayOptions, workers: int | None =
         if progress:
             progress(result)
 
-    try:
-        while queue or pending:
-            while queue and (workers is None or len(pending) < workers):
-                submit(*queue.popleft())
-            [ref], _ = ray.wait(list(pending), num_returns=1)
-            i, ship = pending.pop(ref)
-            try:
-                reply = ray.get(ref)
-            except Exception as err:  # Ray-side: a crashed worker, a lost node, a package missing there
-                finish(i, _failed(jobs[i], _ray_error_line(err)))
-                continue
-            if "missing" in reply:
-                queue.appendleft((i, (*ship, *reply["missing"])))
-                continue
-            try:
-                finish(i, land(reply))
-            except OSError as err:
-                finish(i, _failed(jobs[i], f"copying its outputs back failed: {one_line(err)}"))
-    finally:
-        for ref in pending:  # interrupted: do not leave work running on a shared cluster
-            with contextlib.suppress(Exception):
-                ray.cancel(ref, force=True)
-        if started:
-            ray.shutdown()
+    with _ray_messages_to_log():  # also while shutting down: Ray's notices about dead workers arrive late
+        try:
+            _drain(ray, jobs, queue, pending, workers, submit, finish)
+        finally:
+            for ref in pending:  # interrupted: do not leave work running on a shared cluster
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
+            if started:
+                ray.shutdown()
     return [results[i] for i in range(len(jobs))]
+
+
+def _drain(ray, jobs, queue, pending, workers, submit, finish) -> None:
+    """Submit up to ``workers`` jobs at a time and hand each reply to ``finish`` as it arrives (``ray.wait``)."""
+    while queue or pending:
+        while queue and (workers is None or len(pending) < workers):
+            submit(*queue.popleft())
+        [ref], _ = ray.wait(list(pending), num_returns=1)
+        i, ship = pending.pop(ref)
+        try:
+            reply = ray.get(ref)
+        except Exception as err:  # Ray-side: a crashed worker, a lost node, a package missing there
+            finish(i, _failed(jobs[i], _ray_error_line(err)))
+            continue
+        if "missing" in reply:
+            queue.appendleft((i, (*ship, *reply["missing"])))
+            continue
+        try:
+            finish(i, land(reply))
+        except OSError as err:
+            finish(i, _failed(jobs[i], f"copying its outputs back failed: {one_line(err)}"))
 
 
 def _failed(job: Job, error: str) -> dict:

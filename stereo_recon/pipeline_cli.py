@@ -28,6 +28,18 @@ def _add_job_options(p: argparse.ArgumentParser) -> None:
                         "uncertainty before the verdict (default: the bench's 0.32,1.44,0.51; 0,0,0 = none)")
 
 
+class _HelpWithDefaults(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's and examples' lines; gives each option's default where its help does not."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if not action.option_strings or action.required or "default" in text or action.default is argparse.SUPPRESS:
+            return text
+        if isinstance(action, argparse._StoreTrueAction):
+            return f"{text} (default: off)"
+        return f"{text} (default: {'none' if action.default is None else '%(default)s'})"
+
+
 def _add_ray_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("Ray (with --executor ray)")
     g.add_argument("--address", default=None, metavar="ADDR",
@@ -61,15 +73,16 @@ def register(sub) -> None:
 
     b = sub.add_parser(
         "batch", help="process many recordings (local process pool or Ray)",
-        description="Run the whole pipeline (reconstruct, measure, report) on many recordings with one calibration: "
-                    "OUT/<video name>/ per recording and OUT/summary.csv with one row per recording. A failed recording "
-                    "is reported and does not stop the others; exit 0 when all succeed, 1 when any failed, 2 on bad options.",
+        description="Run the whole pipeline (reconstruct, measure, report) on many recordings with one calibration:\n"
+                    "OUT/<video name>/ per recording and OUT/summary.csv with one row per recording. One line is\n"
+                    "printed per recording as it finishes; a failed recording is reported and does not stop the others.\n"
+                    "Exit 0 when all succeed, 1 when any failed, 2 on bad options.",
         epilog="examples:\n"
                "  stereo-recon batch flights/*.avi --calib SN28000001.conf --out season --workers 2\n"
                "  stereo-recon batch flights/*.avi --calib SN28000001.conf --out season --executor ray --address auto\n"
                "  stereo-recon batch flights/day2/*.avi --calib SN28000001.conf --out season --resume  "
                "# merges into season/summary.csv",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        formatter_class=_HelpWithDefaults)
     b.add_argument("videos", nargs="+", type=Path, help="side-by-side videos (or folders of left/right images)")
     b.add_argument("--calib", required=True, help="ZED .conf, rig YAML, or fx,fy,cx,cy,baseline_m, used for every video (required)")
     b.add_argument("--out", type=Path, required=True, help="output folder: OUT/<name>/ per video and OUT/summary.csv (required)")

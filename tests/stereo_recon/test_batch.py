@@ -125,3 +125,40 @@ def test_job_folder_travels_back_to_the_driver(tmp_path):
     assert (out / "keep.txt").is_file()  # merged like a local run, not replaced
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no staging folder left
     assert os.listdir(out.parent) == ["trück"]
+
+
+def test_ray_error_with_a_remote_traceback_is_one_line():
+    from stereo_recon.batch_ray import _ray_error_line
+
+    # The text Ray 2.60 raised on a node whose stereo-recon lacked the module (seen on a loopback cluster).
+    cause = RuntimeError(
+        "The remote function failed to import on the worker. This may be because needed library dependencies are "
+        "not installed in the worker environment or cannot be found from sys.path ['/tmp/x']:\n\n"
+        "Traceback (most recent call last):\n  File \"/ray/_private/function_manager.py\", line 314, in fetch\n"
+        "    function = pickle.loads(serialized_function)\nModuleNotFoundError: No module named 'stereo_recon.batch_ray'\n")
+    err = Exception("RayTaskError")
+    err.cause = cause
+    line = _ray_error_line(err)
+    assert "\n" not in line and "Traceback" not in line and "sys.path" not in line
+    assert line.startswith("ModuleNotFoundError: No module named 'stereo_recon.batch_ray'")
+    assert "installed on every node" in line
+
+
+def test_batch_help_has_description_example_and_every_default(capsys):
+    import re
+
+    from stereo_recon.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["batch", "--help"])
+    assert exit_.value.code == 0
+    text = capsys.readouterr().out
+    assert "summary.csv" in text and "examples:" in text and "stereo-recon batch " in text and "RAY_ADDRESS" in text
+    # Each option's help (up to the next option) names its default, or says it is required.
+    options = re.split(r"\n  (?=-)", text.split("options:", 1)[1].split("examples:", 1)[0])[1:]
+    assert len(options) > 15
+    for block in options:
+        if block.startswith("-h"):
+            continue
+        flat = " ".join(block.split())
+        assert "default" in flat or "(required)" in flat, flat
