@@ -201,6 +201,29 @@ def _node_lacks(path: str, state: tuple[str, int | None]) -> bool:
     return here[0] != kind or (kind == "file" and here[1] != size)
 
 
+_SCRATCH_PREFIX = "stereo-recon-job-"
+
+
+def _scratch_dir() -> Path:
+    """A fresh scratch folder named after this process; first removes those of dead processes
+    (a worker killed mid-job, e.g. by the OOM killer, cannot clean up after itself)."""
+    for old in Path(tempfile.gettempdir()).glob(f"{_SCRATCH_PREFIX}*-*"):
+        pid = old.name[len(_SCRATCH_PREFIX):].split("-")[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(old, ignore_errors=True)
+    return Path(tempfile.mkdtemp(prefix=f"{_SCRATCH_PREFIX}{os.getpid()}-"))
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
 def run_on_node(job: Job, states: dict, ship_mode: str, shipped: tuple[str, ...], *blobs: bytes) -> dict:
     """Ray task body: run ``job`` in a scratch folder of this node and return its outputs as tar bytes.
 
@@ -217,7 +240,7 @@ def run_on_node(job: Job, states: dict, ship_mode: str, shipped: tuple[str, ...]
         return {"result": {"name": job.name, **job.info, "host": socket.gethostname(), "ok": False, "time_s": 0.0,
                            "error": f"{lacking[0]}: not on node {socket.gethostname()} (the same absolute path on every "
                                     f"node, or --ship-inputs auto)"}, "outputs": {}}
-    scratch = Path(tempfile.mkdtemp(prefix="stereo-recon-job-"))
+    scratch = _scratch_dir()
     try:
         to_node: dict[str, str] = {}
         for k, (path, blob) in enumerate(zip(shipped, blobs)):

@@ -56,6 +56,8 @@ def _add_ray_options(p: argparse.ArgumentParser) -> None:
 def _ray_options(args):
     from stereo_recon.batch_ray import RayOptions
 
+    if args.address and args.executor != "ray":
+        raise ConfigError(f"--address {args.address}: a Ray cluster is used only with --executor ray")
     return RayOptions(address=args.address, cpus_per_job=args.cpus_per_job, memory_per_job_gb=args.memory_per_job_gb,
                       ship_inputs=args.ship_inputs)
 

@@ -162,3 +162,30 @@ def test_batch_help_has_description_example_and_every_default(capsys):
             continue
         flat = " ".join(block.split())
         assert "default" in flat or "(required)" in flat, flat
+
+
+def test_scratch_of_a_killed_worker_is_removed_by_the_next_job(tmp_path, monkeypatch):
+    import subprocess
+    import sys
+    import tempfile
+
+    from stereo_recon.batch_ray import _scratch_dir
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    left = tmp_path / f"stereo-recon-job-{int(dead.stdout)}-x1"
+    (left / "out").mkdir(parents=True)
+    mine = tmp_path / f"stereo-recon-job-{os.getpid()}-x2"  # a job still running in a live process
+    mine.mkdir()
+    fresh = _scratch_dir()
+    assert fresh.is_dir() and fresh.name.startswith(f"stereo-recon-job-{os.getpid()}-")
+    assert not left.exists() and mine.exists()
+
+
+def test_address_without_ray_executor_is_one_line_error(tmp_path, capsys):
+    from stereo_recon.cli import main
+
+    rc = main(["batch", str(tmp_path / "v.avi"), "--calib", "1,1,1,1,0.1", "--out", str(tmp_path / "o"), "--address", "auto"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "\n" not in err and "--address" in err and "--executor ray" in err
+    assert not (tmp_path / "o").exists()
