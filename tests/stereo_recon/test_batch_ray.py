@@ -205,6 +205,16 @@ def test_existing_loopback_cluster_matches_local_pool(recordings, local_run, loo
         assert rows[name]["length_m"] == _rows(local)[name]["length_m"]
     assert "Traceback" not in err
 
+    # --resume on one recording: its finished reconstruction travels to the node and is reused there;
+    # its row is replaced in summary.csv, the other recording's row stays.
+    tree.rename(tmp / "out")
+    rc, tree, err = _batch(tmp, "ray-cluster-resumed", recordings[:1], "--executor", "ray", "--address", address,
+                           "--resume", env=auth)
+    assert rc == 0, err
+    assert json.loads((tree / "truckA" / "job.json").read_text())["stages"]["reconstruct"]["status"] == "reused"
+    _same_outputs(tree, local)
+    assert sorted(_rows(tree)) == ["truckA.avi", "truckB.avi"]
+
     # RAY_ADDRESS alone (how Ray users point every tool at their cluster); a failure there is one line.
     rc, tree, err = _batch(tmp, "ray-cluster-bad", recordings[2:], "--executor", "ray", env={**auth, "RAY_ADDRESS": address})
     assert rc == 1 and _rows(tree)["broken.avi"]["ok"] == "false"
