@@ -222,7 +222,9 @@ def _cmd_batch(args) -> int:
                        ray_options=_ray_options(args))
     csv_path = write_summary_csv(args.out / "summary.csv", results, merge=args.resume)
     n_ok = sum(r["ok"] for r in results)
-    print(f"{n_ok}/{len(results)} recordings measured in {time.perf_counter() - t0:.1f} s; summary: {csv_path}")
+    failed = [r["name"] for r in results if not r["ok"]]
+    print(f"{n_ok}/{len(results)} recordings measured in {time.perf_counter() - t0:.1f} s; summary: {csv_path}"
+          + (f"; failed: {', '.join(failed)}" if failed else ""))
     return 0 if n_ok == len(results) else 1
 
 
