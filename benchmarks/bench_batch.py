@@ -6,7 +6,10 @@ start-up and shut-down, the job folders travelling back to the driver, summary.c
 The two sides alternate, ``--repeats`` times each, so that load from other work on the machine hits both
 alike; the best time of each side is compared. The Ray side's cloud.ply files must equal the pool's byte for byte.
 
-Run:  .venv/bin/python benchmarks/bench_batch.py [--videos 4] [--repeats 2] [--frames N]
+Ray sets OMP_NUM_THREADS to each task's CPUs (1 here); the pool's processes keep all threads unless
+``--pool-omp-threads 1`` gives them the same cap.
+
+Run:  .venv/bin/python benchmarks/bench_batch.py [--videos 4] [--repeats 2] [--frames N] [--pool-omp-threads 1]
 """
 
 from __future__ import annotations
@@ -51,10 +54,10 @@ def _videos(folder: Path, n: int, frames: int | None) -> list[Path]:
     return out
 
 
-def _batch(videos: list[Path], out: Path, options: list[str]) -> float:
+def _batch(videos: list[Path], out: Path, options: list[str], extra_env: dict | None = None) -> float:
     """Wall seconds of one ``stereo-recon batch`` command (fails loudly if it does)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
-           "MPLBACKEND": "Agg"}
+           "MPLBACKEND": "Agg", **(extra_env or {})}
     cmd = [sys.executable, "-m", "stereo_recon.cli", "-q", "batch", *map(str, videos), "--calib",
            str(SAMPLE / "SN28000001.conf"), "--out", str(out), *options]
     t0 = time.perf_counter()
@@ -70,6 +73,8 @@ def main() -> int:
     ap.add_argument("--videos", type=int, default=4, help="recordings per batch (default 4)")
     ap.add_argument("--repeats", type=int, default=2, help="runs of each side, alternating (default 2)")
     ap.add_argument("--frames", type=int, default=None, help="use only the sample's first N frames (default: all 48)")
+    ap.add_argument("--pool-omp-threads", type=int, default=None,
+                    help="OMP_NUM_THREADS for the pool's processes (Ray sets it to each task's CPUs; default: unset)")
     args = ap.parse_args()
     try:
         import ray  # noqa: F401
@@ -86,13 +91,15 @@ def main() -> int:
             order = list(sides) if rep % 2 == 0 else list(sides)[::-1]
             for side in order:
                 out = tmp / f"out-{rep}-{list(sides).index(side)}"
-                walls[side].append(_batch(videos, out, sides[side]))
+                extra = {"OMP_NUM_THREADS": str(args.pool_omp_threads)} if args.pool_omp_threads and "pool" in side else None
+                walls[side].append(_batch(videos, out, sides[side], extra))
                 print(f"  {side}: {walls[side][-1]:.1f} s", flush=True)
         for v in videos:  # same recordings, same clouds, whichever executor ran them
             ref = (tmp / "out-0-0" / v.stem / "cloud.ply").read_bytes()
             assert (tmp / "out-0-1" / v.stem / "cloud.ply").read_bytes() == ref, f"{v.stem}: clouds differ"
     local, ray_ = (min(walls[k]) for k in sides)
-    print(f"{args.videos} sample videos ({args.frames or 48} frames each), best of {args.repeats}: local pool --workers 2 "
+    omp = f" (OMP_NUM_THREADS={args.pool_omp_threads})" if args.pool_omp_threads else ""
+    print(f"{args.videos} sample videos ({args.frames or 48} frames each), best of {args.repeats}: local pool --workers 2{omp} "
           f"{local:.1f} s, Ray local 2-CPU instance {ray_:.1f} s, ratio {ray_ / local:.3f} "
           f"(Ray overhead {100 * (ray_ / local - 1):+.1f} %; target <= +10 %); clouds identical")
     return 0
