@@ -357,9 +357,13 @@ def run_jobs_ray(jobs: Sequence[Job], options: RayOptions, workers: int | None =
         job = jobs[i]
         if options.ship_inputs == "always":
             ship = tuple(p for p in job.inputs if states[i][p][0] != "missing")
-        blobs = [ray.put(_pack(p)) for p in ship]
-        if job.reuse_outputs:
-            blobs += [ray.put(_pack(p)) if os.path.isdir(p) else None for p in job.outputs]
+        try:
+            blobs = [ray.put(_pack(p)) for p in ship]
+            if job.reuse_outputs:
+                blobs += [ray.put(_pack(p)) if os.path.isdir(p) else None for p in job.outputs]
+        except OSError as err:  # unreadable here: this job fails, the others go on
+            finish(i, _failed(job, f"cannot send its files to the cluster: {one_line(err)}"))
+            return
         ref = task.options(name=f"stereo-recon:{job.name}", **resources).remote(job, states[i], options.ship_inputs, ship, *blobs)
         pending[ref] = (i, ship)
 
@@ -385,6 +389,8 @@ def _drain(ray, jobs, queue, pending, workers, submit, finish) -> None:
     while queue or pending:
         while queue and (workers is None or len(pending) < workers):
             submit(*queue.popleft())
+        if not pending:  # every job just taken failed before reaching Ray
+            continue
         [ref], _ = ray.wait(list(pending), num_returns=1)
         i, ship = pending.pop(ref)
         try:

@@ -123,15 +123,22 @@ def test_local_ray_instance_matches_local_pool(recordings, local_run):
     assert "Traceback" not in err
 
 
-def test_ray_side_crash_is_one_line_and_others_finish(loopback_cluster, monkeypatch, capfd):
+def test_ray_side_crash_is_one_line_and_others_finish(loopback_cluster, monkeypatch, capfd, tmp_path):
+    from stereo_recon import batch_ray
     from stereo_recon.batch import Job, run_jobs
 
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    # An input that vanishes after the driver looked at it cannot be shipped: that job alone fails.
+    gone = str(tmp_path / "gone.avi")
+    looked = batch_ray._input_state
+    monkeypatch.setattr(batch_ray, "_input_state", lambda p: ("file", 10) if p == gone else looked(p))
     # With no address a fresh local instance starts, even while another cluster runs on this machine.
     # os._exit kills the Ray worker: Ray itself reports the failure, not the job's own code.
-    jobs = [Job("crash", os._exit, (3,)), Job("fine", json.loads, ('{"length_m": 2.0}',))]
-    results = run_jobs(jobs, workers=2, executor="ray")
-    assert [r["ok"] for r in results] == [False, True] and results[1]["length_m"] == 2.0
+    jobs = [Job("crash", os._exit, (3,)), Job("fine", json.loads, ('{"length_m": 2.0}',)),
+            Job("gone", json.loads, ("{}",), inputs=(gone,))]
+    results = run_jobs(jobs, workers=2, executor="ray", ray_options=batch_ray.RayOptions(ship_inputs="always"))
+    assert [r["ok"] for r in results] == [False, True, False] and results[1]["length_m"] == 2.0
+    assert results[2]["error"].startswith("cannot send its files to the cluster: FileNotFoundError") and gone in results[2]["error"]
     assert "\n" not in results[0]["error"] and "Traceback" not in results[0]["error"]
     assert "Worker" in results[0]["error"] or "crash" in results[0]["error"].lower(), results[0]["error"]
     printed = capfd.readouterr()
