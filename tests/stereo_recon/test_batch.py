@@ -189,3 +189,17 @@ def test_address_without_ray_executor_is_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "\n" not in err and "--address" in err and "--executor ray" in err
     assert not (tmp_path / "o").exists()
+
+
+def test_ray_options_are_checked_before_anything_runs(monkeypatch):
+    import sys
+
+    from stereo_recon.batch_ray import RayOptions
+
+    with pytest.raises(ConfigError, match="--cpus-per-job"):
+        run_jobs(GOOD, executor="ray", ray_options=RayOptions(cpus_per_job=0))
+    with pytest.raises(ConfigError, match="--ship-inputs"):
+        run_jobs(GOOD, executor="ray", ray_options=RayOptions(ship_inputs="sometimes"))
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if the extra were not installed
+    with pytest.raises(ConfigError, match=r"Ray is not installed \(pip install"):
+        run_jobs(GOOD, executor="ray")
