@@ -17,5 +17,5 @@ if [ ! -x .venv/bin/python ]; then
     "$PY" -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
-.venv/bin/python -m pip install -q -e ".[test]"
+.venv/bin/python -m pip install -q -e ".[test,ray]"
 .venv/bin/python -c "import open3d, cv2, pycolmap, scipy, numpy; print('stereo-recon set-up OK: open3d', open3d.__version__, 'opencv', cv2.__version__, 'pycolmap', pycolmap.__version__)"

@@ -1,22 +1,26 @@
-"""Many recordings at once: a local process pool by default, or a Ray cluster.
+"""Many recordings at once: a local process pool by default, or a Ray cluster (``batch_ray``).
 
-One failed job is recorded with its error and does not stop the others. The same
-machinery runs ``bench``.
+One failed job is recorded with its error and does not stop the others; results are reported
+as they finish. The same machinery runs ``bench``. ``summary.csv`` (one typed row per recording)
+is written here too.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
 import csv
+import json
 import logging
+import math
 import multiprocessing as mp
 import os
+import socket
 import tempfile
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from stereo_recon.errors import ConfigError, StereoReconError
 from stereo_recon.manifest import set_default_mode
@@ -26,56 +30,90 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Job:
-    """One unit of batch work: ``func(*args)`` must be a module-level (picklable) function returning a dict."""
+    """One unit of batch work: ``func(*args)`` must be a module-level (picklable) function returning a dict.
+
+    ``inputs`` and ``outputs`` name the files/folders among ``args`` (also inside dataclass args)
+    that the job reads and writes: they are made absolute on the driver, and on Ray the inputs
+    are shipped to a node that lacks them and the outputs come back to the driver.
+    """
 
     name: str
     func: Callable[..., dict]
     args: tuple
+    inputs: tuple[str, ...] = ()        # files or folders the job reads
+    outputs: tuple[str, ...] = ()       # folders the job writes
+    reuse_outputs: bool = False         # existing output folders are inputs too (``--resume``)
+    info: dict = field(default_factory=dict, hash=False)  # copied into the job's result (e.g. its video), also on failure
+
+
+def substitute_paths(obj: Any, mapping: Mapping[str, str]) -> Any:
+    """``obj`` with every str/Path value equal to a key of ``mapping`` replaced by its value.
+
+    Walks tuples, lists, dicts and dataclass fields; a Path stays a Path.
+    """
+    if isinstance(obj, Path):
+        return Path(mapping[str(obj)]) if str(obj) in mapping else obj
+    if isinstance(obj, str):
+        return mapping.get(obj, obj)
+    if isinstance(obj, (tuple, list)):
+        return type(obj)(substitute_paths(v, mapping) for v in obj)
+    if isinstance(obj, dict):
+        return {k: substitute_paths(v, mapping) for k, v in obj.items()}
+    if is_dataclass(obj) and not isinstance(obj, type):
+        changed = {f.name: substitute_paths(getattr(obj, f.name), mapping) for f in fields(obj) if f.init}
+        return replace(obj, **changed)
+    return obj
+
+
+def resolve_job(job: Job) -> Job:
+    """The job with its inputs and outputs as absolute paths of this (the driver's) machine."""
+    mapping = {str(p): os.path.abspath(p) for p in (*job.inputs, *job.outputs)}
+    return replace(job, args=substitute_paths(job.args, mapping), inputs=tuple(mapping[str(p)] for p in job.inputs),
+                   outputs=tuple(mapping[str(p)] for p in job.outputs))
+
+
+def one_line(err: BaseException) -> str:
+    """``'Type: message'`` on one line (whitespace collapsed)."""
+    text = " ".join(str(err).split())
+    return f"{type(err).__name__}: {text}" if text else type(err).__name__
 
 
 def _call(job: Job) -> dict:
     t0 = time.perf_counter()
+    base = {"name": job.name, **job.info, "host": socket.gethostname()}
     try:
         out = job.func(*job.args)
-        return {"name": job.name, "ok": True, "error": None, "time_s": time.perf_counter() - t0, **out}
+        return {**base, "ok": True, "error": None, "time_s": time.perf_counter() - t0, **out}
     except StereoReconError as err:
-        return {"name": job.name, "ok": False, "error": " ".join(str(err).split()), "time_s": time.perf_counter() - t0}
+        return {**base, "ok": False, "error": " ".join(str(err).split()), "time_s": time.perf_counter() - t0}
     except Exception as err:  # a crash in one recording must not stop the fleet
         log.debug("job %s crashed:\n%s", job.name, traceback.format_exc())
-        return {"name": job.name, "ok": False, "error": f"{type(err).__name__}: {err}", "time_s": time.perf_counter() - t0}
+        return {**base, "ok": False, "error": one_line(err), "time_s": time.perf_counter() - t0}
 
 
-def run_jobs(jobs: Sequence[Job], workers: int = 1, executor: str = "local", progress: Callable[[dict], None] | None = None) -> list[dict]:
-    """Run jobs and return their result dicts in the order given.
+def run_jobs(jobs: Sequence[Job], workers: int | None = 1, executor: str = "local",
+             progress: Callable[[dict], None] | None = None, ray_options=None) -> list[dict]:
+    """Run jobs; ``progress`` sees each result as it finishes; returns the results in the order given.
 
     Parameters
     ----------
-    workers : processes (local) or concurrent tasks (ray); 1 runs in this process.
-    executor : ``'local'`` (process pool) or ``'ray'`` (needs the ``ray`` extra; uses an existing
-        cluster if ``RAY_ADDRESS`` is set, else starts a local instance).
+    workers : processes (local; None = 1, 1 runs in this process) or, on Ray, the most jobs
+        submitted at once (None: all; a local Ray instance then gets this many job slots).
+    executor : ``'local'`` (process pool) or ``'ray'`` (the ``ray`` extra; see ``batch_ray``).
+    ray_options : :class:`stereo_recon.batch_ray.RayOptions` (address, resources per job, input shipping).
     """
     if executor not in {"local", "ray"}:
         raise ConfigError(f"--executor: unknown executor '{executor}' (use local or ray)")
-    results: dict[int, dict] = {}
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers: must be >= 1, got {workers}")
+    jobs = [resolve_job(j) for j in jobs]
     if executor == "ray":
-        try:
-            import ray
-        except ImportError as err:
-            raise ConfigError("--executor ray: Ray is not installed (pip install 'stereo-recon[ray]')") from err
-        started = not ray.is_initialized()
-        if started:
-            ray.init(address=os.environ.get("RAY_ADDRESS"), num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
-        try:
-            remote = ray.remote(_call)
-            refs = [remote.remote(j) for j in jobs]
-            for i, ref in enumerate(refs):
-                results[i] = ray.get(ref)
-                if progress:
-                    progress(results[i])
-        finally:
-            if started:
-                ray.shutdown()
-    elif workers <= 1 or len(jobs) <= 1:
+        from stereo_recon.batch_ray import RayOptions, run_jobs_ray
+
+        return run_jobs_ray(jobs, ray_options or RayOptions(), workers=workers, progress=progress)
+    results: dict[int, dict] = {}
+    workers = workers or 1
+    if workers <= 1 or len(jobs) <= 1:
         for i, job in enumerate(jobs):
             results[i] = _call(job)
             if progress:
@@ -92,39 +130,107 @@ def run_jobs(jobs: Sequence[Job], workers: int = 1, executor: str = "local", pro
     return [results[i] for i in range(len(jobs))]
 
 
-SUMMARY_COLUMNS = ("name", "ok", "length_m", "width_m", "height_m", "u_length_m", "u_width_m", "u_height_m", "verdict", "time_s", "out_dir", "error")
+# summary.csv: one row per recording, keyed by the video's absolute path. Lengths in metres to the
+# millimetre, booleans as true/false, empty cells for what a failed job could not give.
+SUMMARY_COLUMNS = ("video", "name", "ok", "length_m", "width_m", "height_m", "u_length_m", "u_width_m", "u_height_m",
+                   "regulation", "vehicle_class", "verdict", "data_quality_ok", "warnings", "video_sha256", "time_s",
+                   "host", "out_dir", "error")
+
+
+def _mm(value) -> str:
+    """Metres rounded to the millimetre ('' for missing / non-finite)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return ""
+    return f"{v:.3f}" if math.isfinite(v) else ""
+
+
+def _bool(value) -> str:
+    return "" if value is None else ("true" if value else "false")
+
+
+def _read_json(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _video_sha256(result: dict, out_dir: Path | None) -> str:
+    """The video's sha256 as the run recorded it (run.json), else hashed here if the file is readable."""
+    from stereo_recon.manifest import sha256_file
+
+    if out_dir is not None:
+        recorded = _read_json(out_dir / "run.json").get("inputs", {}).get("video", {})
+        if isinstance(recorded, dict) and recorded.get("sha256"):
+            return recorded["sha256"]
+    video = result.get("video")
+    try:
+        return sha256_file(video) if video and Path(video).is_file() else ""
+    except OSError:
+        return ""
 
 
 def summary_row(result: dict) -> dict:
-    """Flatten one job result into a row of the summary CSV."""
+    """One typed row of summary.csv from a job result (and its measurement.json when present)."""
+    out_dir = Path(result["out_dir"]) if result.get("out_dir") else None
+    m = _read_json(out_dir / "measurement.json") if out_dir is not None and result.get("ok") else {}
     unc = result.get("uncertainty_m") or {}
-    verdict = result.get("verdict") or {}
+    verdict = result.get("verdict") if isinstance(result.get("verdict"), dict) else {}
+    reg = verdict.get("regulation")
+    dq = m.get("data_quality") if isinstance(m.get("data_quality"), dict) else {}
+    warnings = m.get("warnings") or []
     return {
-        "name": result.get("name"),
-        "ok": result.get("ok"),
-        "length_m": result.get("length_m"),
-        "width_m": result.get("width_m"),
-        "height_m": result.get("height_m"),
-        "u_length_m": unc.get("length"),
-        "u_width_m": unc.get("width"),
-        "u_height_m": unc.get("height"),
-        "verdict": verdict.get("overall") if isinstance(verdict, dict) else verdict,
-        "time_s": round(float(result.get("time_s") or 0.0), 3),
-        "out_dir": result.get("out_dir"),
-        "error": result.get("error"),
+        "video": result.get("video") or "",
+        "name": result.get("name") or "",
+        "ok": _bool(bool(result.get("ok"))),
+        "length_m": _mm(result.get("length_m")),
+        "width_m": _mm(result.get("width_m")),
+        "height_m": _mm(result.get("height_m")),
+        "u_length_m": _mm(unc.get("length")),
+        "u_width_m": _mm(unc.get("width")),
+        "u_height_m": _mm(unc.get("height")),
+        "regulation": (reg.get("name") if isinstance(reg, dict) else reg) or "",
+        "vehicle_class": verdict.get("vehicle_class") or "",
+        "verdict": verdict.get("overall") or "",
+        "data_quality_ok": _bool(dq.get("ok")),
+        "warnings": "; ".join(" ".join(str(w).split()) for w in warnings) if isinstance(warnings, list) else str(warnings),
+        "video_sha256": _video_sha256(result, out_dir),
+        "time_s": f"{float(result.get('time_s') or 0.0):.1f}",
+        "host": result.get("host") or "",
+        "out_dir": str(out_dir) if out_dir is not None else "",
+        "error": result.get("error") or "",
     }
 
 
-def write_summary_csv(path: str | os.PathLike, results: Sequence[dict]) -> Path:
-    """Write the batch summary CSV (one row per job) atomically."""
+def write_summary_csv(path: str | os.PathLike, results: Sequence[dict], merge: bool = False) -> Path:
+    """Write summary.csv atomically, one row per job.
+
+    merge : keep the rows of an existing summary.csv, replacing those of the same video (``--resume``);
+        rows of videos not run now stay, in their order, and new videos are appended.
+    """
     path = Path(path)
+    rows: dict[str, dict] = {}
+    if merge and path.is_file():
+        with path.open(newline="") as f:
+            for old in csv.DictReader(f):
+                key = old.get("video") or old.get("name") or ""
+                rows[key] = {c: old.get(c) or "" for c in SUMMARY_COLUMNS}
+    for r in results:
+        row = summary_row(r)
+        rows[row["video"] or row["name"]] = row
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
-        w.writeheader()
-        for r in results:
-            w.writerow(summary_row(r))
-    set_default_mode(tmp)
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
+            w.writeheader()
+            w.writerows(rows.values())
+        set_default_mode(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
     return path

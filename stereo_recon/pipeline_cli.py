@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -35,6 +36,40 @@ def _add_job_options(p: argparse.ArgumentParser) -> None:
                         "uncertainty before the verdict (default: the bench's 0.32,1.44,0.51; 0,0,0 = none)")
 
 
+class _HelpWithDefaults(argparse.RawDescriptionHelpFormatter):
+    """Keeps the description's and examples' lines; gives each option's default where its help does not."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if not action.option_strings or action.required or "default" in text or action.default is argparse.SUPPRESS:
+            return text
+        if isinstance(action, argparse._StoreTrueAction):
+            return f"{text} (default: off)"
+        return f"{text} (default: {'none' if action.default is None else '%(default)s'})"
+
+
+def _add_ray_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("Ray (with --executor ray)")
+    g.add_argument("--address", default=None, metavar="ADDR",
+                   help="Ray cluster to use: auto (the one running on this machine), HOST:PORT or ray://HOST:10001 "
+                        "(default: $RAY_ADDRESS, else start a local instance)")
+    g.add_argument("--cpus-per-job", type=float, default=1.0, help="CPUs Ray reserves for each recording (default 1)")
+    g.add_argument("--memory-per-job-gb", type=float, default=None,
+                   help="memory Ray reserves for each recording, GiB: a scheduling hint, not a limit (default: none)")
+    g.add_argument("--ship-inputs", choices=("auto", "always", "never"), default="auto",
+                   help="send videos and calibration files through Ray to nodes that do not have them at the same "
+                        "absolute path: auto (only those nodes), always, never (default: auto)")
+
+
+def _ray_options(args):
+    from stereo_recon.batch_ray import RayOptions
+
+    if args.address and args.executor != "ray":
+        raise ConfigError(f"--address {args.address}: a Ray cluster is used only with --executor ray")
+    return RayOptions(address=args.address, cpus_per_job=args.cpus_per_job, memory_per_job_gb=args.memory_per_job_gb,
+                      ship_inputs=args.ship_inputs)
+
+
 def register(sub) -> None:
     p = sub.add_parser("run", help="video -> reconstruction -> measurement -> report (defaults to the bundled sample)",
                        description="Reconstruct a truck from side-by-side stereo video, measure it and write report.html. "
@@ -46,17 +81,28 @@ def register(sub) -> None:
     _add_job_options(p)
     p.set_defaults(func=_cmd_run)
 
-    b = sub.add_parser("batch", help="process many recordings (local process pool or Ray)",
-                       description="Run the whole job (reconstruct, measure, report) on each video, one output folder "
-                                   "per video (OUT/<video name>), in parallel, and write OUT/summary.csv with one row "
-                                   "per recording. All videos share one calibration.")
+    b = sub.add_parser(
+        "batch", help="process many recordings (local process pool or Ray)",
+        description="Run the whole pipeline (reconstruct, measure, report) on many recordings with one calibration:\n"
+                    "OUT/<video name>/ per recording and OUT/summary.csv with one row per recording. One line is\n"
+                    "printed per recording as it finishes; a failed recording is reported and does not stop the others.\n"
+                    "Exit 0 when all succeed, 1 when any failed, 2 on bad options.",
+        epilog="examples:\n"
+               "  stereo-recon batch flights/*.avi --calib SN28000001.conf --out season --workers 2\n"
+               "  stereo-recon batch flights/*.avi --calib SN28000001.conf --out season --executor ray --address auto\n"
+               "  stereo-recon batch flights/day2/*.avi --calib SN28000001.conf --out season --resume  "
+               "# merges into season/summary.csv",
+        formatter_class=_HelpWithDefaults)
     b.add_argument("videos", nargs="+", type=Path, help="side-by-side videos (or folders of left/right images)")
-    b.add_argument("--calib", required=True, help="ZED .conf, rig YAML, or fx,fy,cx,cy,baseline_m, for every video")
-    b.add_argument("--out", type=Path, required=True, help="output folder: one subfolder per video and summary.csv")
-    b.add_argument("--workers", type=int, default=1, help="recordings processed at the same time")
+    b.add_argument("--calib", required=True, help="ZED .conf, rig YAML, or fx,fy,cx,cy,baseline_m, used for every video (required)")
+    b.add_argument("--out", type=Path, required=True, help="output folder: OUT/<name>/ per video and OUT/summary.csv (required)")
+    b.add_argument("--workers", type=int, default=None,
+                   help="jobs at once (default: 1 with --executor local; with ray, as many as the cluster's CPUs allow)")
     b.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="local process pool, or a Ray cluster (pip install .[ray])")
-    b.add_argument("--resume", action="store_true", help="reuse finished stages of each recording whose inputs are unchanged")
+                   help="local process pool, or Ray: an existing cluster (--address / RAY_ADDRESS) or a local instance (default: local)")
+    b.add_argument("--resume", action="store_true",
+                   help="reuse finished reconstructions whose video and settings are unchanged, and merge rows into summary.csv")
+    _add_ray_options(b)
     _add_job_options(b)
     b.set_defaults(func=_cmd_batch)
 
@@ -72,6 +118,7 @@ def register(sub) -> None:
     c.add_argument("--workers", type=int, default=1, help="trucks processed at the same time")
     c.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool, or a Ray cluster (pip install .[ray])")
+    _add_ray_options(c)
     c.add_argument("--no-full-scale", action="store_true", help="skip the full-scale presets (full-truck, over-height)")
     c.add_argument("--motion-stereo", action="store_true", help="motion stereo on every truck, not only far scenes (vo poses)")
     c.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
@@ -210,32 +257,56 @@ def _run_one(video: str, calib: str, out_dir: str, cfg) -> dict:
 
 
 def _cmd_batch(args) -> int:
-    from stereo_recon.batch import Job, run_jobs, write_summary_csv
-
+    import time
     from dataclasses import replace
 
+    from stereo_recon.batch import run_jobs, write_summary_csv
     from stereo_recon.pipeline import validate_job
     from stereo_recon.validate import check_output_dir
 
+    t0 = time.perf_counter()
     cfg = replace(_job_config(args, args.resume), quiet=True)  # parallel jobs: no per-job progress lines
     validate_job(cfg)   # regulation, class, config: once, before any job
     check_output_dir(args.out, foreign_ok=True)   # holds one folder per recording, never replaced as a whole
+    jobs = _batch_jobs(args, cfg)
+    n_done = 0
+
+    def progress(r):
+        nonlocal n_done
+        n_done += 1
+        where = f" on {r['host']}" if r.get("host") and args.executor == "ray" else ""
+        if r["ok"]:
+            v = r.get("verdict") or {}
+            status = (f"ok  L {r['length_m']:.3f}  W {r['width_m']:.3f}  H {r['height_m']:.3f} m  "
+                      f"{v.get('overall', '') if isinstance(v, dict) else v}  {r['time_s']:.1f} s{where}")
+        else:
+            status = f"FAILED ({r.get('video')}){where}: {r['error']}"
+        print(f"[{n_done}/{len(jobs)}] {r['name']}: {status}", file=sys.stderr, flush=True)
+
+    results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress,
+                       ray_options=_ray_options(args))
+    csv_path = write_summary_csv(args.out / "summary.csv", results, merge=args.resume)
+    n_ok = sum(r["ok"] for r in results)
+    failed = [r["name"] for r in results if not r["ok"]]
+    print(f"{n_ok}/{len(results)} recordings measured in {time.perf_counter() - t0:.1f} s; summary: {csv_path}"
+          + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return 0 if n_ok == len(results) else 1
+
+
+def _batch_jobs(args, cfg) -> list:
+    """One job per video: OUT/<stem>/ (OUT/<stem>-<i>/ when stems repeat); every file it reads is declared."""
+    from stereo_recon.batch import Job
+
     names = [v.stem for v in args.videos]
     dupes = {n for n in names if names.count(n) > 1}
+    files = [str(p) for p in (args.calib, cfg.measure_config, cfg.regulation) if p is not None and Path(p).is_file()]
     jobs = []
     for i, v in enumerate(args.videos):
         name = f"{v.stem}-{i}" if v.stem in dupes else v.stem
-        jobs.append(Job(name, _run_one, (str(v), args.calib, str(args.out / name), cfg)))
-
-    def progress(r):
-        status = "ok" if r["ok"] else f"FAILED: {r['error']}"
-        print(f"[{r['name']}] {status}", file=sys.stderr)
-
-    results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
-    csv_path = write_summary_csv(args.out / "summary.csv", results)
-    n_ok = sum(r["ok"] for r in results)
-    print(f"{n_ok}/{len(results)} recordings measured; summary: {csv_path}")
-    return 0 if n_ok == len(results) else 1
+        out = str(args.out / name)
+        jobs.append(Job(name, _run_one, (str(v), args.calib, out, cfg), inputs=(str(v), *files), outputs=(out,),
+                        reuse_outputs=args.resume, info={"video": os.path.abspath(v)}))
+    return jobs
 
 
 def _cmd_bench_random(args) -> int:
@@ -294,10 +365,11 @@ def _cmd_bench(args) -> int:
         trucks = [t for t in trucks if t <= 6] or [1, 2, 3, 4, 5, 6]  # the paper's six training trucks
     overrides = _reconstruct_overrides(args)
     jobs = [Job(f"table2:{n}", bench_one, (f"table2:{n}", str(out / "scenes" / f"table2-{n}"), str(out / "runs" / f"table2-{n}"),
-                                          args.seed + n, args.frames, args.poses, overrides)) for n in trucks]
+                                          args.seed + n, args.frames, args.poses, overrides),
+                outputs=(str(out / "scenes" / f"table2-{n}"), str(out / "runs" / f"table2-{n}"))) for n in trucks]
     full = [] if (args.no_full_scale or args.study) else ["full-truck", "over-height"]
     jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, args.poses,
-                                overrides)) for p in full]
+                                overrides), outputs=(str(out / "scenes" / p), str(out / "runs" / p))) for p in full]
 
     bar = StageProgress(("bench",), config=ProgressConfig(enabled=not getattr(args, "quiet", False)))
     finished = 0
@@ -315,7 +387,8 @@ def _cmd_bench(args) -> int:
 
     with bar:
         bar("bench", 0, len(jobs))
-        results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
+        results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress,
+                           ray_options=_ray_options(args))
     model = [r for r in results if r["name"].startswith("table2:")]
     fullscale = [r for r in results if not r["name"].startswith("table2:")]
     # A study runs only the six training trucks: its table must not overwrite a full Table 2 in the same folder.
