@@ -243,6 +243,7 @@ def _sample_truck(rng: np.random.Generator, scale: str | None) -> TruckDraw:
         L, W, H = _u(rng, FULL_LENGTH_M), _u(rng, FULL_WIDTH_M), _u(rng, FULL_HEIGHT_M)
     cab_l = _u(rng, CAB_LENGTH_FRAC)
     cab_h = _u(rng, CAB_HEIGHT_FRAC)
+    # The load is drawn for every kind (kept for flatbeds only) so that the draws after it do not depend on the kind.
     load = None
     n_crates = int(rng.integers(2, 5))
     heights = [_u(rng, (0.5, 1.0)) for _ in range(n_crates)]
@@ -340,6 +341,7 @@ def _sample_camera(rng: np.random.Generator) -> CameraDraw:
 
 def _sample_scene(rng: np.random.Generator, t: TruckDraw) -> SceneDraw:
     ground = GROUND_CLASSES[int(rng.integers(len(GROUND_CLASSES)))]
+    # The second vehicle is drawn in every draw (kept in a third) for the same reason as the flatbed's load.
     second = None
     has_second = rng.uniform() < SECOND_VEHICLE_SHARE
     relation = SECOND_RELATIONS[int(rng.integers(len(SECOND_RELATIONS)))]
