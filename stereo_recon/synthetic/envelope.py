@@ -533,23 +533,24 @@ def draw_dir(out_dir, index: int) -> Path:
 
 
 def render_random(count: int, seed: int, out_dir, *, max_frames: int | None = None, scale: str | None = None,
-                  resolution: str = "HD720", reuse: bool = True) -> list[dict]:
+                  resolution: str = "HD720") -> list[dict]:
     """Render draws 0..count-1 of ``seed`` into ``out_dir/draw_NNN`` (a folder whose truth.json holds the same spec is reused)."""
     if int(count) < 1:
         raise ConfigError(f"--random: the number of draws must be >= 1, got {count}")
-    out = []
-    for i in range(int(count)):
-        spec = draw_spec(seed, i, max_frames=max_frames, scale=scale, resolution=resolution)
-        d = draw_dir(out_dir, i)
-        existing = load_draw_spec(d) if reuse else None
-        if existing is not None and existing == spec:
-            log.info("random draw %s: reusing %s", spec.name, d)
-            out.append(_read_truth(d))
-            continue
-        if existing is not None:
-            raise ConfigError(f"{d}: holds another draw (its truth.json's random_spec differs); choose another --out")
-        out.append(render_draw(spec, d))
-    return out
+    return [ensure_rendered(draw_spec(seed, i, max_frames=max_frames, scale=scale, resolution=resolution), draw_dir(out_dir, i))
+            for i in range(int(count))]
+
+
+def ensure_rendered(spec: RandomSceneSpec, d) -> dict:
+    """The truth of draw ``spec`` in folder ``d``: reused when ``d`` holds this very draw, rendered when ``d`` has none;
+    ConfigError when ``d`` holds another draw (never overwritten)."""
+    existing = load_draw_spec(d)
+    if existing is None:
+        return render_draw(spec, d)
+    if existing != spec:
+        raise ConfigError(f"{d}: holds another draw (its truth.json's random_spec differs); choose another --out")
+    log.info("random draw %s: reusing %s", spec.name, d)
+    return _read_truth(d)
 
 
 def _read_truth(d: Path) -> dict:
