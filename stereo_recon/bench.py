@@ -299,16 +299,11 @@ def bench_random_one(seed: int, index: int, draws_dir: str, runs_dir: str, max_f
                      resolution: str) -> dict:
     """Render (or reuse) draw ``index`` of ``seed`` and run the full pipeline on it with default settings (as ``run``)."""
     from stereo_recon.pipeline import RunConfig, run_video
-    from stereo_recon.synthetic.envelope import draw_dir, draw_spec, load_draw_spec, render_draw
+    from stereo_recon.synthetic.envelope import draw_dir, draw_spec, ensure_rendered
 
     t0 = time.perf_counter()
     scene = draw_dir(draws_dir, index)
-    spec = draw_spec(seed, index, max_frames=max_frames, scale=scale, resolution=resolution)
-    existing = load_draw_spec(scene)
-    if existing is None:
-        render_draw(spec, scene)
-    elif existing != spec:
-        raise ConfigError(f"{scene}: holds another draw (its truth.json's random_spec differs); choose another --out")
+    ensure_rendered(draw_spec(seed, index, max_frames=max_frames, scale=scale, resolution=resolution), scene)
     render_s = time.perf_counter() - t0
     video, calib, _ = _scene_files(scene)
     summary = run_video(video, calib, runs_dir, RunConfig(resume=True, quiet=True))

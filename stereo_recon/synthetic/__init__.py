@@ -13,12 +13,14 @@ Main entry points::
     orbit_poses(frames, centre_xy, OrbitConfig(), rng) / pass_poses(frames, T_world_truck, PassConfig(), rng)
     get_preset(name) / preset_names()
     plane_disparity_check(resolution, rectified) -> rectified disparity of a plane vs f*B/Z
+    draw_spec(seed, index) -> RandomSceneSpec (the operating envelope, envelope.py); render_random(K, seed, out_dir)
 """
 
 # Lazy exports: ``stereo-recon --help`` imports this package (through its cli module) and must not
 # pay for cv2/scipy/open3d.
 _EXPORTS = {
     "checks": ("plane_disparity_check",),
+    "envelope": ("RandomSceneSpec", "build_draw", "draw_spec", "render_draw", "render_random", "sample_scene_spec"),
     "camera": ("RESOLUTIONS", "SYNTH_SERIAL", "pixel_rays", "project_points", "zed2_rig"),
     "flight": ("OrbitConfig", "PassConfig", "look_at", "orbit_poses", "pass_poses"),
     "presets": ("TABLE2_STANDARD_M", "Preset", "get_preset", "over_limit_expectation", "preset_names"),

@@ -243,6 +243,7 @@ def _sample_truck(rng: np.random.Generator, scale: str | None) -> TruckDraw:
         L, W, H = _u(rng, FULL_LENGTH_M), _u(rng, FULL_WIDTH_M), _u(rng, FULL_HEIGHT_M)
     cab_l = _u(rng, CAB_LENGTH_FRAC)
     cab_h = _u(rng, CAB_HEIGHT_FRAC)
+    # The load is drawn for every kind (kept for flatbeds only) so that the draws after it do not depend on the kind.
     load = None
     n_crates = int(rng.integers(2, 5))
     heights = [_u(rng, (0.5, 1.0)) for _ in range(n_crates)]
@@ -340,6 +341,7 @@ def _sample_camera(rng: np.random.Generator) -> CameraDraw:
 
 def _sample_scene(rng: np.random.Generator, t: TruckDraw) -> SceneDraw:
     ground = GROUND_CLASSES[int(rng.integers(len(GROUND_CLASSES)))]
+    # The second vehicle is drawn in every draw (kept in a third) for the same reason as the flatbed's load.
     second = None
     has_second = rng.uniform() < SECOND_VEHICLE_SHARE
     relation = SECOND_RELATIONS[int(rng.integers(len(SECOND_RELATIONS)))]
@@ -531,23 +533,24 @@ def draw_dir(out_dir, index: int) -> Path:
 
 
 def render_random(count: int, seed: int, out_dir, *, max_frames: int | None = None, scale: str | None = None,
-                  resolution: str = "HD720", reuse: bool = True) -> list[dict]:
+                  resolution: str = "HD720") -> list[dict]:
     """Render draws 0..count-1 of ``seed`` into ``out_dir/draw_NNN`` (a folder whose truth.json holds the same spec is reused)."""
     if int(count) < 1:
         raise ConfigError(f"--random: the number of draws must be >= 1, got {count}")
-    out = []
-    for i in range(int(count)):
-        spec = draw_spec(seed, i, max_frames=max_frames, scale=scale, resolution=resolution)
-        d = draw_dir(out_dir, i)
-        existing = load_draw_spec(d) if reuse else None
-        if existing is not None and existing == spec:
-            log.info("random draw %s: reusing %s", spec.name, d)
-            out.append(_read_truth(d))
-            continue
-        if existing is not None:
-            raise ConfigError(f"{d}: holds another draw (its truth.json's random_spec differs); choose another --out")
-        out.append(render_draw(spec, d))
-    return out
+    return [ensure_rendered(draw_spec(seed, i, max_frames=max_frames, scale=scale, resolution=resolution), draw_dir(out_dir, i))
+            for i in range(int(count))]
+
+
+def ensure_rendered(spec: RandomSceneSpec, d) -> dict:
+    """The truth of draw ``spec`` in folder ``d``: reused when ``d`` holds this very draw, rendered when ``d`` has none;
+    ConfigError when ``d`` holds another draw (never overwritten)."""
+    existing = load_draw_spec(d)
+    if existing is None:
+        return render_draw(spec, d)
+    if existing != spec:
+        raise ConfigError(f"{d}: holds another draw (its truth.json's random_spec differs); choose another --out")
+    log.info("random draw %s: reusing %s", spec.name, d)
+    return _read_truth(d)
 
 
 def _read_truth(d: Path) -> dict:

@@ -1,0 +1,74 @@
+"""CI slice of the operating-envelope benchmark: short random draws through the real pipeline, held to the issue's bounds.
+
+Draws 0-2 of seed SLICE_SEED, capped at SLICE_FRAMES frames: the first tuning seed from 10 on
+whose first three draws hold both scales (two model, one full: full-scale runs cost ~3x more)
+and three body kinds; chosen for coverage, not because they pass. Bounds, from issue 12's
+targets for the 40-draw benchmark: no failure; no dimension worse than 3.0 %; the truth inside the
+reported +-2 sigma for at least 7 of the 9 dimensions (90 % coverage leaves a 9-dimension slice
+at <= 6 covered with 5 % probability); every full-scale verdict right (``bench.verdict_matches``).
+"""
+
+import pytest
+
+from stereo_recon.bench import DIMS, bench_random_one, envelope_row
+from stereo_recon.synthetic.envelope import draw_spec
+
+SLICE_SEED = 21
+SLICE_FRAMES = 48
+MAX_ABS_ERROR_PCT = 3.0
+
+# Where the pipeline does not yet meet the bounds (issue 12, item 3): draw index -> the failure mode seen.
+# Seen on main e875b61 + this generator (2026-11-24); remove an entry when the pipeline meets the bounds (strict xfail).
+KNOWN_FAILURES: dict[int, str] = {
+    0: "full-scale 7.6 m box seen from 20.5 m at 46 deg, plain paint (1.9 % contrast), a shorter vehicle 1.8 W away: "
+       "L -5.0 %, W -3.2 %, H -8.8 %",
+    1: "model-scale tanker (rounded body) from 3.7 m, plain paint, noise 5.3 DN: W -11.1 %, H -7.5 %",
+    2: "model-scale 1.19 m semi-trailer from 2.4 m at 20 deg, first-generation ZED lens: W +14.0 %, H -5.6 %",
+}
+COVERAGE_KNOWN_FAILURE: str | None = ("truth inside the reported +-2 sigma for 3 of 9 dimensions: the bootstrap sigma sees only "
+                                      "the cloud's scatter, not the reconstruction's bias (issue 12, item 3)")
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def slice_rows(tmp_path_factory):
+    root = tmp_path_factory.mktemp("envelope-slice")
+    rows = {}
+    for i in range(3):
+        spec = draw_spec(SLICE_SEED, i, max_frames=SLICE_FRAMES)
+        try:
+            result = {"name": spec.name, "ok": True, **bench_random_one(SLICE_SEED, i, str(root / "draws"), str(root / "runs" / str(i)),
+                                                                         SLICE_FRAMES, None, "HD720")}
+        except Exception as err:  # a failure is a result here: the row records its reason
+            result = {"name": spec.name, "ok": False, "error": f"{type(err).__name__}: {err}"}
+        rows[i] = envelope_row(result, spec)
+    return rows
+
+
+def _draw_param(i):
+    marks = [pytest.mark.xfail(strict=True, reason=KNOWN_FAILURES[i])] if i in KNOWN_FAILURES else []
+    return pytest.param(i, marks=marks, id=f"draw{i}")
+
+
+@pytest.mark.parametrize("index", [_draw_param(i) for i in range(3)])
+def test_slice_draw_is_measured_within_bounds(slice_rows, index):
+    row = slice_rows[index]
+    assert row["ok"], f"{row['name']} ({row['spec']['scale']} {row['spec']['kind']}) failed: {row['failure_reason']}"
+    worst = max(abs(row["error_pct"][d]) for d in DIMS)
+    assert worst <= MAX_ABS_ERROR_PCT, f"{row['name']}: errors {row['error_pct']}"
+    if row["spec"]["scale"] == "full":
+        assert row["verdict_right"], f"{row['name']}: verdict {row['verdict']}, truth expects {row['expected_verdict']}"
+
+
+@pytest.mark.xfail(COVERAGE_KNOWN_FAILURE is not None, strict=True, reason=COVERAGE_KNOWN_FAILURE or "")
+def test_slice_uncertainty_covers_the_truth(slice_rows):
+    covered = sum(bool(r["within_2sigma"] and r["within_2sigma"][d]) for r in slice_rows.values() for d in DIMS)
+    assert covered >= 7, {r["name"]: (r["error_pct"], r["sigma_m"]) for r in slice_rows.values()}
+
+
+def test_slice_spans_the_envelope():
+    specs = [draw_spec(SLICE_SEED, i, max_frames=SLICE_FRAMES) for i in range(3)]
+    assert {s.truck.scale for s in specs} == {"model", "full"}
+    assert len({s.truck.kind for s in specs}) == 3 and sum(s.truck.scale == "model" for s in specs) == 2
+    assert all(s.flight.frames == SLICE_FRAMES for s in specs)
