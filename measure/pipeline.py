@@ -330,33 +330,42 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     )
 
 
-def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_rel_sigma: dict | None):
+def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_rel_sigma: dict | None,
+                         reconstruction_abs_m: dict | None = None):
     """One standard uncertainty per dimension: the measurement's own and the reconstruction's, in quadrature.
 
     values_m / measurement_u_m: {length, width, height} in metres (the cloud's measurement and its
     uncertainty). reconstruction_rel_sigma: {length, width, height} relative standard error of the
     cloud itself (e.g. 0.0144 = 1.44 % of the width), or None when the cloud is taken as exact.
+    reconstruction_abs_m: a further standard error of the cloud in metres per dimension (the depth
+    geometry's, ``stereo_recon.uncertainty.depth_sigma_m``), or None.
     Returns (uncertainty_m, parts or None); ConfigError for a negative or non-finite share.
     """
     from measure.limits import DIMENSIONS
 
-    if not reconstruction_rel_sigma:
+    if not reconstruction_rel_sigma and not reconstruction_abs_m:
         return dict(measurement_u_m), None
-    rel = {}
+    rel, absolute = {}, {}
     for d in DIMENSIONS:
-        r = reconstruction_rel_sigma.get(d, 0.0)
-        if not (isinstance(r, (int, float)) and math.isfinite(r) and r >= 0):
-            raise ConfigError(f"reconstruction_rel_sigma[{d!r}] must be a finite number >= 0, got {r!r}")
-        rel[d] = float(r)
-    recon = {d: rel[d] * abs(float(values_m[d])) for d in rel}
+        for name, table, out in (("reconstruction_rel_sigma", reconstruction_rel_sigma, rel),
+                                 ("reconstruction_abs_m", reconstruction_abs_m, absolute)):
+            r = (table or {}).get(d, 0.0)
+            if not (isinstance(r, (int, float)) and math.isfinite(r) and r >= 0):
+                raise ConfigError(f"{name}[{d!r}] must be a finite number >= 0, got {r!r}")
+            out[d] = float(r)
+    recon = {d: math.hypot(rel[d] * abs(float(values_m[d])), absolute[d]) for d in rel}
     total = {d: float(math.hypot(float(measurement_u_m[d]), recon[d])) for d in rel}
-    return total, {"measurement_m": dict(measurement_u_m), "reconstruction_m": recon, "reconstruction_rel_sigma": rel}
+    parts = {"measurement_m": dict(measurement_u_m), "reconstruction_m": recon, "reconstruction_rel_sigma": rel}
+    if reconstruction_abs_m:
+        parts["reconstruction_depth_m"] = absolute
+    return total, parts
 
 
 def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfig(), up_hint=None, centre_hint=None,
                        regulation: str = "cn-2016-62", vehicle_class: str | None = None, scale: float | None = None,
                        plots: bool = True, html: bool = True, k_sigma: float = 2.0,
                        reconstruction_rel_sigma: dict | None = None, progress=None, case: dict | None = None,
+                       reconstruction_abs_m: dict | None = None,
                        units: str = "m", centre_strict: bool = False,
                        checks: list[dict] | None = None, camera_centres=None, record_path=None) -> dict:
     """Measure the truck in a cloud file; write ``out_dir/measurement.json`` (+ PNG plots, report.html).
@@ -418,7 +427,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
         gates += orbit_checks(m, camera_centres)
     sha = sha256_file(cloud_path)
     values = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
-    uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma)
+    uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma, reconstruction_abs_m)
     verdict = over_limit_verdict(values, uncertainty, reg, vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
     verdict = apply_data_quality(verdict, gates)
     summary = m.summary()

@@ -34,7 +34,7 @@ from typing import Callable, Sequence
 
 from stereo_recon.batch import Job, _call, one_line, substitute_paths
 from stereo_recon.errors import ConfigError
-from stereo_recon.manifest import staged_output_dir
+from stereo_recon.manifest import write_json_atomic, staged_output_dir
 
 log = logging.getLogger(__name__)
 
@@ -290,6 +290,23 @@ def _relocate_value(obj, moved: dict[str, str]):
     return obj
 
 
+def _refresh_output_record(folder: Path, changed: list[Path]) -> None:
+    """Re-record the size and sha256 of relocated files in the job's job.json, so that ``run --resume``
+    (which checks them) still reuses the reconstruction the node made."""
+    from stereo_recon.pipeline import output_record
+
+    job = folder / "job.json"
+    names = [f.name for f in changed if f.parent == folder]
+    if not names or not job.is_file():
+        return
+    rec = json.loads(job.read_text(encoding="utf-8"))
+    outputs = rec.get("outputs")
+    if not isinstance(outputs, dict) or not any(n in outputs for n in names):
+        return
+    outputs.update(output_record(folder, [n for n in names if n in outputs]))
+    write_json_atomic(job, rec)
+
+
 def land(reply: dict) -> dict:
     """Unpack a task's output folders into the driver's paths (atomically) and return its result."""
     moved = reply.get("moved") or {}
@@ -299,6 +316,7 @@ def land(reply: dict) -> dict:
         with staged_output_dir(driver_path) as stage:
             _unpack(blob, stage)
             inner = stage / os.path.basename(driver_path.rstrip("/"))
+            changed = []
             for f in inner.rglob("*"):
                 if f.is_file() and f.suffix.lower() in _TEXT_SUFFIXES:
                     try:
@@ -308,6 +326,8 @@ def land(reply: dict) -> dict:
                     new = _relocate_text(text, moved, f.suffix.lower())
                     if new != text:
                         f.write_text(new, encoding="utf-8")
+                        changed.append(f)
+            _refresh_output_record(inner, changed)
             for item in inner.iterdir():  # the staged folder's contents are the job folder's
                 os.replace(item, stage / item.name)
             inner.rmdir()

@@ -26,9 +26,11 @@ EXAMPLES = {
   stereo-recon calib-check flight.avi --calib SN28000001.conf
   stereo-recon run flight.avi --calib SN28000001.conf --out out/truck7 \\
       --regulation gb1589-2016 --site "G4 toll gate 12" --operator "Li Wei" --case-id 2026-0117""",
-    "batch": """example:
-  stereo-recon batch flights/*.avi --calib SN28000001.conf --out out/day1 --workers 2
-  stereo-recon batch flights/*.avi --calib SN28000001.conf --out out/day1 --resume   # after adding videos""",
+    "batch": """examples:
+  stereo-recon batch flights/*.avi --calib SN28000001.conf --out season --workers 2
+  stereo-recon batch flights/*.avi --calib SN28000001.conf --out season --executor ray --address auto
+  RAY_ADDRESS=10.0.0.5:6379 stereo-recon batch flights/*.avi --calib SN28000001.conf --out season --executor ray
+  stereo-recon batch flights/day2/*.avi --calib SN28000001.conf --out season --resume   # merges into season/summary.csv""",
     "bench": """example:
   stereo-recon bench --trucks 1-3 --no-full-scale --out out/bench-quick   # three model trucks, a few minutes
   stereo-recon bench --out out/bench                                      # the paper's Table 2 + full scale""",

@@ -18,6 +18,7 @@ import numpy as np
 from stereo_recon.errors import InputError, StageError, StereoReconError
 from stereo_recon.manifest import sha256_file, staged_output_dir, to_jsonable, write_json_atomic
 from stereo_recon.progress import ProgressConfig, StageProgress
+from stereo_recon.uncertainty import depth_sigma_m
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +82,9 @@ class RunConfig:
     # Relative standard error of the reconstructed cloud per dimension, added in quadrature to the
     # measurement's own uncertainty before the verdict (None or zeros: the cloud is taken as exact).
     reconstruction_rel_sigma: dict | None = field(default_factory=lambda: dict(RECONSTRUCTION_REL_SIGMA))
+    # Add the depth geometry's share of the reconstruction's error (stereo_recon.uncertainty: k_px x Z^2/(f B)
+    # for the baseline that made the depth), calibrated on tuning scenes; False: the relative floor only.
+    depth_uncertainty: bool = True
     quiet: bool = False                  # no progress line on the terminal
     case: dict | None = None             # {site, operator, case_id} for the report (free text)
 
@@ -255,6 +259,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
                 paths.cloud, paths.root, mcfg, up_hint=up, centre_hint=None if centres is None else centres.mean(axis=0),
                 regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
                 reconstruction_rel_sigma=config.reconstruction_rel_sigma, checks=checks, camera_centres=centres,
+                reconstruction_abs_m=depth_sigma_m(meta)[0] if config.depth_uncertainty else None,
                 record_path=final.cloud, progress=progress, case=config.case)
             progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
             stages["measure"] = {"status": "done", "time_s": time.perf_counter() - t1}

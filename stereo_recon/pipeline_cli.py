@@ -94,8 +94,8 @@ def register(sub) -> None:
                "# merges into season/summary.csv",
         formatter_class=_HelpWithDefaults)
     b.add_argument("videos", nargs="+", type=Path, help="side-by-side videos (or folders of left/right images)")
-    b.add_argument("--calib", required=True, help="ZED .conf, rig YAML, or fx,fy,cx,cy,baseline_m, used for every video (required)")
-    b.add_argument("--out", type=Path, required=True, help="output folder: OUT/<name>/ per video and OUT/summary.csv (required)")
+    b.add_argument("--calib", required=True, help="ZED .conf, rig YAML, or fx,fy,cx,cy,baseline_m, used for every video")
+    b.add_argument("--out", type=Path, required=True, help="output folder: OUT/<name>/ per video and OUT/summary.csv")
     b.add_argument("--workers", type=int, default=None,
                    help="jobs at once (default: 1 with --executor local; with ray, as many as the cluster's CPUs allow)")
     b.add_argument("--executor", choices=("local", "ray"), default="local",

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     check_number("--fps", args.fps)
     check_number("--voxel-m", args.voxel_m)
     check_number("--depth-min-m", args.depth_min_m, allow_none=False)
-    check_number("--depth-max-m", args.depth_max_m, allow_none=False)
+    check_number("--depth-max-m", args.depth_max_m)   # None: derived from the rig
     check_number("--step", args.step, integer=True, minimum=1, strict=False)
     check_output_dir(args.out)
     if args.poses.startswith("gt:") and not Path(args.poses[3:]).is_file():

@@ -278,7 +278,9 @@ def test_sigkill_leaves_temp_that_the_next_run_removes(tmp_path, capsys):
     time.sleep(1.0)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    assert temps and temps[0].exists() and not out.exists()
+    # The killed run's work is only in its temporary folder; the output folder holds at most its log.txt
+    # (opened before the run, it says how far the run got).
+    assert temps and temps[0].exists() and (not out.exists() or sorted(os.listdir(out)) == ["log.txt"])
     from measure.cloud_io import write_cloud
     from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
 

@@ -35,7 +35,7 @@ def test_resume_reuses_only_identical_inputs(tmp_path):
     assert reuse_problem(paths, input_fingerprint(video, calib, rcfg)) is None
     why = reuse_problem(paths, input_fingerprint(video, calib, replace(rcfg, motion_stereo=MotionStereoConfig())))
     assert why.startswith("reconstruction parameters changed: motion_stereo")
-    assert "depth_max_m (20.0 -> 10.0)" in reuse_problem(paths, input_fingerprint(video, calib, replace(rcfg, depth_max_m=10.0)))
+    assert "depth_max_m (None -> 10.0)" in reuse_problem(paths, input_fingerprint(video, calib, replace(rcfg, depth_max_m=10.0)))
     calib.write_text("[STEREO]\nBaseline=132\n")  # baseline +10 %
     assert reuse_problem(paths, input_fingerprint(video, calib, rcfg)).startswith("the calibration changed")
     video.write_bytes(b"other frames")

@@ -1,0 +1,81 @@
+"""The reconstruction's own error, as a standard uncertainty per dimension, from how the depth was measured.
+
+The measurement's bootstrap sees only the cloud's scatter. What it cannot see is how far the fused
+surfaces sit from the true ones, and that grows with how coarsely the stereo geometry resolves depth:
+a surface is placed along the viewing ray to within ``e_Z = Z^2 / (f * B)`` metres per pixel of
+disparity error (Z the working distance, f the focal length in px, B the baseline that made the
+depth: the rig's, or the drone's own motion for motion stereo, about ``wide_baseline_rel * Z``).
+A dimension spans two such surfaces, so its error is ``k_px * e_Z`` metres, with ``k_px`` the
+effective systematic disparity error (px) that survives fusion. On top of that, a floor relative to
+the dimension (what the close orbits of the 22 rendered presets still showed).
+
+``k_px`` was calibrated on tuning data only: the operating-envelope draws of tuning seeds 0 and 1
+(`stereo-recon bench --random K --seed 0|1`), four orbits flown wider and lower than the presets, and
+the 20 Table 2 trucks: for each run and dimension the k that puts the truth inside the reported
++-2 sigma, and then the 90th percentile of those per dimension and depth mode (2026-11-24). It is not
+fitted to the evaluation seed or to any external recording.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from stereo_recon.errors import ConfigError
+
+DIMENSIONS = ("length", "width", "height")
+
+
+@dataclass(frozen=True)
+class ReconstructionErrorModel:
+    """Parameters of :func:`reconstruction_sigma_m` (see the module docstring)."""
+
+    # Relative floor per dimension (the 22 rendered presets' rms relative errors, 2026-11-23).
+    floor_rel: dict = field(default_factory=lambda: {"length": 0.0032, "width": 0.0144, "height": 0.0051})
+    # Effective disparity error (px) per dimension when the rig's 12 cm baseline made the fused depth.
+    rig_px: dict = field(default_factory=lambda: {"length": 0.046, "width": 0.100, "height": 0.077})
+    # The same when motion stereo (wide pairs of frames) made it; its baseline is wide_baseline_rel x Z.
+    wide_px: dict = field(default_factory=lambda: {"length": 1.034, "width": 0.323, "height": 0.164})
+    wide_baseline_rel: float = 0.11
+
+    def __post_init__(self) -> None:
+        for name in ("floor_rel", "rig_px", "wide_px"):
+            table = getattr(self, name)
+            for d in DIMENSIONS:
+                v = table.get(d)
+                if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                    raise ConfigError(f"reconstruction error model {name}[{d!r}] must be a finite number >= 0, got {v!r}")
+        if not 0 < self.wide_baseline_rel < 1:
+            raise ConfigError(f"reconstruction error model wide_baseline_rel={self.wide_baseline_rel}: must be in (0, 1)")
+
+
+def depth_geometry(run_meta: dict) -> dict | None:
+    """Working distance Z (m), focal f (px), baseline B (m) and whether motion stereo made the depth, from run.json.
+
+    None when run.json lacks what is needed (an older or foreign file): the caller then keeps the floor only.
+    """
+    try:
+        rect = run_meta["rig"]["rectified"]
+        f, B = float(rect["focal_px"]), float(rect["baseline_m"])
+        counts = run_meta["counts"]
+        d = float(counts["first_view_disparity_px"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not (f > 0 and B > 0 and d > 0 and math.isfinite(d)):
+        return None
+    return {"Z_m": f * B / d, "focal_px": f, "baseline_m": B, "motion_stereo": bool(counts.get("motion_stereo_views"))}
+
+
+def depth_sigma_m(run_meta: dict, model: ReconstructionErrorModel = ReconstructionErrorModel()) -> tuple[dict | None, dict]:
+    """The depth term (m) per dimension, ``k_px * e_Z``, from the reconstruction's run.json (rig, counts).
+
+    Returns ({dimension: sigma_m} or None when run.json cannot say, parts {e_z_m_per_px, k_px, geometry}).
+    The relative floor (``model.floor_rel``) is applied by the measure stage (it needs the values).
+    """
+    geo = depth_geometry(run_meta)
+    if geo is None:
+        return None, {"geometry": None}
+    b = model.wide_baseline_rel * geo["Z_m"] if geo["motion_stereo"] else geo["baseline_m"]
+    e_z = geo["Z_m"] ** 2 / (geo["focal_px"] * b)
+    k = dict(model.wide_px if geo["motion_stereo"] else model.rig_px)
+    return {d: float(k[d]) * e_z for d in DIMENSIONS}, {"e_z_m_per_px": e_z, "k_px": k, "geometry": geo}
