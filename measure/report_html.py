@@ -370,8 +370,13 @@ def _dimensions_block(measurement: Mapping, verdict: Mapping) -> str:
     if isinstance(u_parts, Mapping) and isinstance(u_parts.get("reconstruction_rel_sigma"), Mapping):
         rel = u_parts["reconstruction_rel_sigma"]
         shares = ", ".join(f"{_e(d)} {100 * float(rel.get(d, 0.0)):.2f}&nbsp;%" for d in DIMENSIONS)
+        depth = u_parts.get("reconstruction_depth_m")
+        depth_txt = ""
+        if isinstance(depth, Mapping):
+            depth_txt = (" and the depth geometry's share (how finely the stereo baseline resolves depth at this range: "
+                         + ", ".join(f"{_e(d)} {1000 * float(depth.get(d, 0.0)):.0f}&nbsp;mm" for d in DIMENSIONS) + ")")
         out.append("<p class='small'>&sigma; combines the measurement's own uncertainty (bootstrap, point spacing, noise) "
-                   f"with the reconstruction's validated relative error ({shares} of each dimension).</p>")
+                   f"with the reconstruction's validated relative error ({shares} of each dimension){depth_txt}.</p>")
     warnings = measurement.get("warnings") or []
     for w in [warnings] if isinstance(warnings, str) else warnings:
         out.append(f"<div class='warn'>{_e(w)}</div>")

@@ -16,7 +16,7 @@ from pathlib import Path
 from stereo_recon import __version__
 from stereo_recon.cli_help import finish_help
 from stereo_recon.errors import StereoReconError
-from stereo_recon.progress import abandon_open, quiet_native_libraries, quiet_open3d
+from stereo_recon.progress import NativeOutputToLog, stream_is_tty, abandon_open, quiet_native_libraries, quiet_open3d
 
 # Modules that contribute subcommands, in the order they appear in --help.
 COMMAND_MODULES = (
@@ -155,12 +155,23 @@ def _close_log_file(handler, folder: Path | None, created: bool, code: int, refu
 
 
 def main(argv: list[str] | None = None) -> int:
+    native = NativeOutputToLog()
+    if stream_is_tty(sys.stderr):
+        # On a terminal the libraries' own messages are taken into the log (below), so FFmpeg may speak up to
+        # its warnings there; elsewhere it stays quiet.
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "24")   # AV_LOG_WARNING
     quiet_native_libraries()  # before any cv2/open3d import: FFmpeg and Open3D messages stay off the terminal
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    with native:   # before logging and progress take their streams: C/C++ output goes to log.txt
+        return _run_command(args, argv)
+
+
+def _run_command(args, argv: list[str] | None) -> int:
+    """Configure logging and log.txt, run the subcommand, turn user errors into one line and an exit code."""
     _configure_logging(args.verbose, args.quiet)
     handler, folder, created = _open_log_file(args, argv)
     code, refused = 1, False

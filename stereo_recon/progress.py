@@ -237,3 +237,79 @@ def quiet_open3d() -> None:
         o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     except Exception:  # open3d missing or without the utility module
         pass
+
+
+class NativeOutputToLog:
+    """While a command runs on a terminal, what C/C++ libraries write straight to file descriptors 1 and 2
+    (FFmpeg through OpenCV, Open3D) goes to the log at debug level (so into log.txt), not onto the screen.
+
+    Python's own ``sys.stdout``/``sys.stderr`` are re-opened on copies of the terminal's descriptors, so
+    results, progress bars and one-line errors still reach it; enter this before logging and progress
+    are configured (their streams are taken from ``sys.stderr`` then). Off when stderr is not a terminal
+    (pipes, CI, tests): nothing is redirected there.
+    """
+
+    def __init__(self, enabled: bool | None = None, logger: str = "stereo_recon.native"):
+        self.enabled = enabled
+        self.log = logging.getLogger(logger)
+        self._saved: dict[int, int] = {}
+        self._streams = None
+        self._reader: threading.Thread | None = None
+
+    def __enter__(self) -> "NativeOutputToLog":
+        on = self.enabled if self.enabled is not None else stream_is_tty(sys.stderr)
+        if not on:
+            return self
+        try:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            self._saved = {fd: os.dup(fd) for fd in (1, 2)}
+            r, w = os.pipe()
+            self._streams = (sys.stdout, sys.stderr)
+            sys.stdout = os.fdopen(os.dup(self._saved[1]), "w", buffering=1, encoding="utf-8", errors="replace")
+            sys.stderr = os.fdopen(os.dup(self._saved[2]), "w", buffering=1, encoding="utf-8", errors="replace")
+            os.dup2(w, 1)
+            os.dup2(w, 2)
+            os.close(w)
+        except (OSError, ValueError):  # no usable descriptors: leave everything as it was
+            self._restore()
+            return self
+        self._reader = threading.Thread(target=self._pump, args=(r,), name="native-output", daemon=True)
+        self._reader.start()
+        return self
+
+    def _pump(self, fd: int) -> None:
+        with os.fdopen(fd, "rb") as pipe:
+            for raw in pipe:
+                line = raw.decode("utf-8", "replace").rstrip()
+                if line:
+                    self.log.debug("%s", line)
+
+    def _restore(self) -> None:
+        if not self._saved:
+            return
+        for fd, saved in self._saved.items():
+            os.dup2(saved, fd)   # also closes the pipe's write ends held on 1 and 2: the reader sees EOF
+            os.close(saved)
+        self._saved = {}
+        if self._streams is not None:
+            for s in (sys.stdout, sys.stderr):
+                try:
+                    s.close()
+                except OSError:
+                    pass
+            sys.stdout, sys.stderr = self._streams
+            self._streams = None
+
+    def __exit__(self, *exc) -> None:
+        self._restore()
+        if self._reader is not None:
+            self._reader.join(timeout=2.0)
+            self._reader = None
+
+
+def stream_is_tty(stream) -> bool:
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False

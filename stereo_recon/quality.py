@@ -115,13 +115,17 @@ def check_recording(source, rig, rcfg, calib, config: RecordingQualityConfig = R
     checks.append(check("eyes_distinct", "pass", f"left and right differ by {diff:.1f} grey levels on average"))
     res = check_pairs(pairs, rig)
     raw, verdict = res["raw"], res["verdict"]
-    if verdict == "swapped_eyes" or (raw["matches"] >= 20 and raw["negative_disparity_fraction"] > config.swapped_min_fraction):
-        raise InputError(f"{source.path}: eyes swapped: {100 * raw['negative_disparity_fraction']:.0f}% of "
-                         f"{raw['matches']} matched features sit further left in the left half than in the right half (negative disparity); "
+    # The eye order is judged on rectified rows when they align: raw disparities of a far scene (a few px) can
+    # be negative for a correct rig (its eyes' principal points and convergence differ by more than that).
+    rec = res.get("rectified") or {}
+    order = rec if rec.get("matches", 0) >= 20 and np.isfinite(rec.get("negative_disparity_fraction", np.nan)) else raw
+    if verdict == "swapped_eyes" or (order["matches"] >= 20 and order["negative_disparity_fraction"] > config.swapped_min_fraction):
+        raise InputError(f"{source.path}: eyes swapped: {100 * order['negative_disparity_fraction']:.0f}% of "
+                         f"{order['matches']} matched features sit further left in the left half than in the right half (negative disparity); "
                          "the left eye must be the left half (swap the halves of the video)")
-    checks.append(check("eye_order", "pass" if raw["matches"] >= 20 else "warn",
-                        f"{100 * (1 - raw['negative_disparity_fraction']):.0f}% of {raw['matches']} matches have a "
-                        "positive disparity" if raw["matches"] else "no feature matches to check the eye order"))
+    checks.append(check("eye_order", "pass" if order["matches"] >= 20 else "warn",
+                        f"{100 * (1 - order['negative_disparity_fraction']):.0f}% of {order['matches']} matches have a "
+                        "positive disparity" if order["matches"] else "no feature matches to check the eye order"))
     cal_size, eye = _calibration_size(calib, rig), tuple(source.eye_size)
     size_txt = f"the calibration is for {cal_size[0]}x{cal_size[1]}, the video's eyes are {eye[0]}x{eye[1]}"
     if verdict == "calibration_mismatch":
