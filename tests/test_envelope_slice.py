@@ -18,7 +18,8 @@ SLICE_FRAMES = 48
 MAX_ABS_ERROR_PCT = 3.0
 
 # Where the pipeline does not yet meet the bounds (issue 12, item 3): draw index -> the failure mode seen.
-# Seen on main e875b61 + this generator (2026-11-24); remove an entry when the pipeline meets the bounds (strict xfail).
+# Figures seen on main e875b61 + this generator (2026-11-24); still failing after that day's fixes (scale-free depth
+# limits, the depth-geometry sigma), which the strict xfail checks. Remove an entry when the pipeline meets the bounds.
 KNOWN_FAILURES: dict[int, str] = {
     0: "full-scale 7.6 m box seen from 20.5 m at 46 deg, plain paint (1.9 % contrast), a shorter vehicle 1.8 W away: "
        "L -5.0 %, W -3.2 %, H -8.8 %",
