@@ -281,10 +281,15 @@ def _cmd_batch(args) -> int:
                       f"{v.get('overall', '') if isinstance(v, dict) else v}  {r['time_s']:.1f} s{where}")
         else:
             status = f"FAILED ({r.get('video')}){where}: {r['error']}"
-        print(f"[{n_done}/{len(jobs)}] {r['name']}: {status}", file=sys.stderr, flush=True)
+        bar.write(f"[{n_done}/{len(jobs)}] {r['name']}: {status}")
+        bar("batch", n_done, len(jobs))
 
-    results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress,
-                       ray_options=_ray_options(args))
+    # One bar over all recordings (%, rate, ETA), each recording's line above it as it finishes.
+    bar = StageProgress(("batch",), config=ProgressConfig(enabled=not getattr(args, "quiet", False)))
+    with bar:
+        bar("batch", 0, len(jobs))
+        results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress,
+                           ray_options=_ray_options(args))
     csv_path = write_summary_csv(args.out / "summary.csv", results, merge=args.resume)
     n_ok = sum(r["ok"] for r in results)
     failed = [r["name"] for r in results if not r["ok"]]
