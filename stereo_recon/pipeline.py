@@ -101,7 +101,8 @@ def find_sample() -> tuple[Path, Path]:
 # Files of a run's folder that belong to the run: a new run replaces them all (an earlier run's
 # mesh.ply or plots never sit beside a new cloud); anything else in the folder is kept.
 RUN_OUTPUTS = frozenset({"cloud.ply", "poses.txt", "run.json", "mesh.ply", "work", "measurement.json", "report.html",
-                         "job.json", "measure_run.json", "width_density.png", "length_density.png", "top_view.png", "side_view.png"})
+                         "job.json", "measure_run.json", "width_density.png", "length_density.png", "top_view.png", "side_view.png",
+                         "keyframe.jpg"})
 # The reconstruction's files, reused by --resume when every input that made them is unchanged.
 RECONSTRUCTION_FILES = ("cloud.ply", "poses.txt", "run.json", "mesh.ply")
 
