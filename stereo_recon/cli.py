@@ -119,7 +119,8 @@ def _open_log_file(args, argv: list[str] | None) -> tuple[logging.Handler | None
 def _folder_state(folder: Path) -> dict:
     """Names and (size, mtime) of a folder's entries other than log.txt: what a refused command must leave as it was."""
     try:
-        return {e.name: (e.stat().st_size, e.stat().st_mtime_ns) for e in os.scandir(folder) if e.name != "log.txt"}
+        return {e.name: (st.st_size, st.st_mtime_ns) for e in os.scandir(folder) if e.name != "log.txt"
+                for st in (e.stat(),)}
     except OSError:
         return {}
 

@@ -6,8 +6,9 @@ a surface is placed along the viewing ray to within ``e_Z = Z^2 / (f * B)`` metr
 disparity error (Z the working distance, f the focal length in px, B the baseline that made the
 depth: the rig's, or the drone's own motion for motion stereo, about ``wide_baseline_rel * Z``).
 A dimension spans two such surfaces, so its error is ``k_px * e_Z`` metres, with ``k_px`` the
-effective systematic disparity error (px) that survives fusion. On top of that, a floor relative to
-the dimension (what the close orbits of the 22 rendered presets still showed).
+effective systematic disparity error (px) that survives fusion. The measure stage adds it in
+quadrature to the relative floor (``pipeline.RunConfig.reconstruction_rel_sigma``: what the close
+orbits of the 22 rendered presets still showed).
 
 ``k_px`` was calibrated on tuning data only: the operating-envelope draws of tuning seeds 0 and 1
 (`stereo-recon bench --random K --seed 0|1`), four orbits flown wider and lower than the presets, and
@@ -21,17 +22,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from measure.limits import DIMENSIONS
 from stereo_recon.errors import ConfigError
-
-DIMENSIONS = ("length", "width", "height")
 
 
 @dataclass(frozen=True)
 class ReconstructionErrorModel:
-    """Parameters of :func:`reconstruction_sigma_m` (see the module docstring)."""
+    """Parameters of :func:`depth_sigma_m` (see the module docstring)."""
 
-    # Relative floor per dimension (the 22 rendered presets' rms relative errors, 2026-11-23).
-    floor_rel: dict = field(default_factory=lambda: {"length": 0.0032, "width": 0.0144, "height": 0.0051})
     # Effective disparity error (px) per dimension when the rig's 12 cm baseline made the fused depth.
     rig_px: dict = field(default_factory=lambda: {"length": 0.046, "width": 0.100, "height": 0.077})
     # The same when motion stereo (wide pairs of frames) made it; its baseline is wide_baseline_rel x Z.
@@ -39,7 +37,7 @@ class ReconstructionErrorModel:
     wide_baseline_rel: float = 0.11
 
     def __post_init__(self) -> None:
-        for name in ("floor_rel", "rig_px", "wide_px"):
+        for name in ("rig_px", "wide_px"):
             table = getattr(self, name)
             for d in DIMENSIONS:
                 v = table.get(d)
@@ -52,7 +50,7 @@ class ReconstructionErrorModel:
 def depth_geometry(run_meta: dict) -> dict | None:
     """Working distance Z (m), focal f (px), baseline B (m) and whether motion stereo made the depth, from run.json.
 
-    None when run.json lacks what is needed (an older or foreign file): the caller then keeps the floor only.
+    None when run.json lacks what is needed (an older or foreign file): the caller then keeps the relative floor only.
     """
     try:
         rect = run_meta["rig"]["rectified"]
@@ -70,7 +68,7 @@ def depth_sigma_m(run_meta: dict, model: ReconstructionErrorModel = Reconstructi
     """The depth term (m) per dimension, ``k_px * e_Z``, from the reconstruction's run.json (rig, counts).
 
     Returns ({dimension: sigma_m} or None when run.json cannot say, parts {e_z_m_per_px, k_px, geometry}).
-    The relative floor (``model.floor_rel``) is applied by the measure stage (it needs the values).
+    The relative floor is applied by the measure stage (it needs the values).
     """
     geo = depth_geometry(run_meta)
     if geo is None:
