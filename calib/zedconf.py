@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.rig import StereoRig, same_aspect
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -214,6 +214,6 @@ def write_zed_conf(rig: StereoRig, path: str | os.PathLike, serial: int = 0,
     lines.append("[MISC]")
     lines.append("Sensor_ID=0")
     lines.append("")
-    from calib.io import atomic_write_text
+    from stereo_recon.core.atomic import write_text_atomic
 
-    return atomic_write_text(path, "\n".join(lines))
+    return write_text_atomic(path, "\n".join(lines))

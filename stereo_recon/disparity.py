@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError, InputError
+from stereo_recon.core.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
 

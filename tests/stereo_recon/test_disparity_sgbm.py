@@ -15,7 +15,7 @@ from stereo_recon.disparity import (
     load_middlebury_2014,
     preset,
 )
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 
 SCENES = ("Adirondack", "Motorcycle", "Piano", "Playtable")
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from stereo_recon.bench import envelope_row, envelope_summary, write_envelope
+from stereo_recon.app.bench import envelope_row, envelope_summary, write_envelope
 from stereo_recon.synthetic.envelope import draw_spec
 
 
