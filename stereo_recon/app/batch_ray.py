@@ -294,8 +294,9 @@ def _refresh_output_record(folder: Path, changed: list[Path]) -> None:
     """Re-record the size and sha256 of relocated files in the job's job.json, so that ``run --resume``
     (which checks them) still reuses the reconstruction the node made."""
     from stereo_recon.app.pipeline import output_record
+    from stereo_recon.core.paths import RunPaths
 
-    job = folder / "job.json"
+    job = RunPaths(folder).summary
     names = [f.name for f in changed if f.parent == folder]
     if not names or not job.is_file():
         return

@@ -176,10 +176,8 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     Returns the job summary dict (also written to ``job.json``).
     """
     from calib.io import parse_calib_arg  # noqa: PLC0415 - heavy imports stay inside the job
-    from measure.pipeline import measure_cloud_file
-    from stereo_recon.app.evidence import keyframe_with_box
-    from stereo_recon.quality import camera_motion_check, check_recording, checks_from_reconstruction
     from stereo_recon.core.validate import check_output_dir
+    from stereo_recon.quality import check_recording
     from stereo_recon.video import open_stereo_source
 
     t0 = time.perf_counter()
@@ -194,7 +192,6 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     fingerprint = input_fingerprint(video, calib, rcfg)
     problem = reuse_problem(final, fingerprint) if config.resume else None
     stages: dict[str, dict] = {}
-    failure: StereoReconError | None = None
     progress = StageProgress(config=ProgressConfig(enabled=not config.quiet))
     with staged_output_dir(final.root, keep=_keep_foreign) as tmp:
         paths = RunPaths(tmp)
@@ -208,32 +205,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
             if config.resume:   # nothing to resume in a new folder: no warning for that
                 (log.warning if final.root.exists() else log.info)("resume: %s; reconstructing again", problem)
             stages["reconstruct"] = _reconstruct_stage(video, rig, tmp, rcfg, calib, progress)
-        meta = json.loads(paths.run_json.read_text())
-        centres = _camera_centres(paths.poses)
-        checks += checks_from_reconstruction(meta)
-        motion = camera_motion_check(meta, centres)
-        checks += [motion] if motion is not None else []
-        up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
-        t1 = time.perf_counter()
-        try:
-            result = measure_cloud_file(
-                paths.cloud, paths.root, config.measure, up_hint=up, centre_hint=None if centres is None else centres.mean(axis=0),
-                regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
-                reconstruction_rel_sigma=config.reconstruction_rel_sigma, checks=checks, camera_centres=centres,
-                reconstruction_abs_m=depth_sigma_m(meta)[0] if config.depth_uncertainty else None,
-                record_path=final.cloud, progress=progress, case=config.case, keyframe=keyframe_with_box)
-            progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
-            stages["measure"] = {"status": "done", "time_s": time.perf_counter() - t1}
-        except StereoReconError as err:
-            failure = err if isinstance(err, StageError) else StageError("measure", str(err))
-            failed = [c for c in checks if c["status"] == "fail"]
-            if failed:  # the likely cause, said with the failure
-                failure = StageError("measure", f"{str(failure).removeprefix('measure: ')} (data quality: "
-                                                + "; ".join(f"{c['name']}: {c['detail']}" for c in failed) + ")")
-            stages["measure"] = {"status": "failed", "error": str(failure)}
-            result = {}
-        except Exception as err:
-            raise StageError("measure", f"{type(err).__name__}: {err}") from err
+        result, stages["measure"], failure = _measure_stage(paths, final, config, checks, progress)
         summary = {
             "video": str(video), "calib": str(calib), "out_dir": str(final.root),
             **{k: result.get(k) for k in ("length_m", "width_m", "height_m", "uncertainty_m", "verdict", "data_quality")},
@@ -249,6 +221,43 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     if failure is not None:
         raise failure
     return summary
+
+
+def _measure_stage(paths: RunPaths, final: RunPaths, config: RunConfig, checks: list[dict], progress):
+    """Measure the reconstruction in ``paths`` into the same folder, with the reconstruction's hints and checks.
+
+    ``checks`` (the recording's gates) gains the reconstruction's own. Returns (measurement dict or {}, the
+    stage's record for job.json, the StageError to raise once job.json is written, or None).
+    """
+    from measure.pipeline import measure_cloud_file
+    from stereo_recon.app.evidence import keyframe_with_box
+    from stereo_recon.quality import camera_motion_check, checks_from_reconstruction
+
+    meta = json.loads(paths.run_json.read_text())
+    centres = _camera_centres(paths.poses)
+    checks += checks_from_reconstruction(meta)
+    motion = camera_motion_check(meta, centres)
+    checks += [motion] if motion is not None else []
+    up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
+    t1 = time.perf_counter()
+    try:
+        result = measure_cloud_file(
+            paths.cloud, paths.root, config.measure, up_hint=up, centre_hint=None if centres is None else centres.mean(axis=0),
+            regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
+            reconstruction_rel_sigma=config.reconstruction_rel_sigma, checks=checks, camera_centres=centres,
+            reconstruction_abs_m=depth_sigma_m(meta)[0] if config.depth_uncertainty else None,
+            record_path=final.cloud, progress=progress, case=config.case, keyframe=keyframe_with_box)
+        progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
+        return result, {"status": "done", "time_s": time.perf_counter() - t1}, None
+    except StereoReconError as err:
+        failure = err if isinstance(err, StageError) else StageError("measure", str(err))
+        failed = [c for c in checks if c["status"] == "fail"]
+        if failed:  # the likely cause, said with the failure
+            failure = StageError("measure", f"{str(failure).removeprefix('measure: ')} (data quality: "
+                                            + "; ".join(f"{c['name']}: {c['detail']}" for c in failed) + ")")
+        return {}, {"status": "failed", "error": str(failure)}, failure
+    except Exception as err:
+        raise StageError("measure", f"{type(err).__name__}: {err}") from err
 
 
 def _reconstruct_stage(video: Path, rig, out: Path, rcfg, calib, progress) -> dict:
