@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from stereo_recon.core.errors import ConfigError, InputError, StageError
+from stereo_recon.core.manifest import library_versions, sha256_file, to_jsonable
 from stereo_recon.core.paths import RunPaths
 
 log = logging.getLogger(__name__)
@@ -135,8 +136,6 @@ class Measurement:
 
     def summary(self) -> dict:
         """The JSON-ready part (no per-point arrays)."""
-        from stereo_recon.core.manifest import to_jsonable
-
         return to_jsonable({
             "length_m": self.length_m,
             "width_m": self.width_m,
@@ -454,7 +453,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     summary = m.summary()
     timings = dict(summary.pop("timings_s"), read=t_read)
     result = _record(m, summary, uncertainty, parts, verdict, gates,
-                     {"path": str(recorded), "sha256": _sha256(cloud_path), "n_points": len(pts), "units": units},
+                     {"path": str(recorded), "sha256": sha256_file(cloud_path), "n_points": len(pts), "units": units},
                      {"name": regulation, "vehicle_class": vehicle_class, "scale": scale, "k_sigma": k_sigma}, case)
     run_info = _run_info(cloud_path.parent)
     if run_info:
@@ -462,20 +461,8 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     manifest = {"command": "measure", "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "input": result["input"], "timings_s": timings}
     _write_folder(out_dir, m, result, manifest, report, scale=scale, plots=plots, html=html, run_info=run_info,
-                  keyframe=(lambda dest: keyframe(cloud_path.parent, _jsonable(result), dest)) if keyframe and run_info else None)
-    return _jsonable(result)
-
-
-def _sha256(path: Path) -> str:
-    from stereo_recon.core.manifest import sha256_file
-
-    return sha256_file(path)
-
-
-def _jsonable(obj):
-    from stereo_recon.core.manifest import to_jsonable
-
-    return to_jsonable(obj)
+                  keyframe=(lambda dest: keyframe(cloud_path.parent, to_jsonable(result), dest)) if keyframe and run_info else None)
+    return to_jsonable(result)
 
 
 def _quality_gates(m: Measurement, scale, units: str, name: str, strict_centre, checks, camera_centres) -> list[dict]:
@@ -504,7 +491,6 @@ def _record(m: Measurement, summary: dict, uncertainty: dict, parts, verdict: di
             regulation: dict, case: dict | None) -> dict:
     """measurement.json's content (before the recording and plots are added); see :func:`measure_cloud_file`."""
     from measure.quality import data_quality
-    from stereo_recon.core.manifest import library_versions
 
     result = {
         "schema_version": SCHEMA_VERSION,
@@ -555,7 +541,7 @@ def _write_folder(out_dir, m: Measurement, result: dict, manifest: dict, report,
                 render_report_html = None
             if render_report_html is not None:
                 report("report", 0, None)
-                render_report_html(_jsonable(dict(result, created_utc=manifest["created_utc"])), images, out.report,
+                render_report_html(to_jsonable(dict(result, created_utc=manifest["created_utc"])), images, out.report,
                                    run_info=run_info)
 
 

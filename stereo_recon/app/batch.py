@@ -14,14 +14,13 @@ import logging
 import math
 import multiprocessing as mp
 import os
-import tempfile
 from pathlib import Path
 from typing import Callable, Sequence
 
 from stereo_recon.app.jobs import Job, call_job, resolve_job
 from stereo_recon.core.errors import ConfigError
 from stereo_recon.core.paths import RunPaths
-from stereo_recon.core.atomic import set_default_mode
+from stereo_recon.core.atomic import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -156,16 +155,12 @@ def write_summary_csv(path: str | os.PathLike, results: Sequence[dict], merge: b
     for r in results:
         row = summary_row(r)
         rows[row["video"] or row["name"]] = row
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
+
+    def write(tmp: str) -> None:
+        with open(tmp, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
             w.writeheader()
             w.writerows(rows.values())
-        set_default_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+
+    write_atomic(path, write)
     return path
