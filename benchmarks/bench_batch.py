@@ -58,7 +58,7 @@ def _batch(videos: list[Path], out: Path, options: list[str], extra_env: dict | 
     """Wall seconds of one ``stereo-recon batch`` command (fails loudly if it does)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
            "MPLBACKEND": "Agg", **(extra_env or {})}
-    cmd = [sys.executable, "-m", "stereo_recon.cli", "-q", "batch", *map(str, videos), "--calib",
+    cmd = [sys.executable, "-m", "stereo_recon.app.cli", "-q", "batch", *map(str, videos), "--calib",
            str(SAMPLE / "SN28000001.conf"), "--out", str(out), *options]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)

@@ -72,7 +72,7 @@ def _frames(args):
         src = open_stereo_source(args.video, (0, args.frames))
         rig = validate_against_rig(src, parse_calib_arg(args.calib, image_size=src.eye_size))
         return ((f.left, f.right) for f in src), rig, f"{args.video} ({src.eye_size[0]}x{src.eye_size[1]} per eye)"
-    from stereo_recon.disparity import load_middlebury_2014
+    from stereo_recon.evaluation import load_middlebury_2014
 
     pairs = []
     for s in SCENES:
@@ -123,7 +123,8 @@ def bench_speed(args) -> dict:
 
 
 def bench_middlebury(args) -> dict:
-    from stereo_recon.disparity import bad_pixel_rate, disparity_map, load_middlebury_2014, preset
+    from stereo_recon.disparity import disparity_map, preset
+    from stereo_recon.evaluation import bad_pixel_rate, load_middlebury_2014
 
     names = ["plain", "fast", "balanced", "quality", "wls"]
     table = {n: [] for n in names}
@@ -150,7 +151,8 @@ def _bench_2003(args, names) -> None:
     """Middlebury 2003 cones/teddy (quarter size): GT = disp2.pgm / 4, 0 unknown; all known pixels (no occlusion mask)."""
     import cv2
 
-    from stereo_recon.disparity import bad_pixel_rate, disparity_map, preset
+    from stereo_recon.disparity import disparity_map, preset
+    from stereo_recon.evaluation import bad_pixel_rate
 
     root = _middlebury_dir(args.middlebury)
     scenes = [s for s in ("cones", "teddy") if (root / f"2003_{s}_quarter" / "im2.png").is_file()]

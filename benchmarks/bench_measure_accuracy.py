@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from measure.pipeline import measure_points  # noqa: E402
 from measure.synthetic_cloud import SceneSpec, TruckShape, make_truck_scene  # noqa: E402
-from stereo_recon.errors import StereoReconError  # noqa: E402
+from stereo_recon.core.errors import StereoReconError  # noqa: E402
 
 DIMS = ("length", "width", "height")
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 
 log = logging.getLogger(__name__)
 

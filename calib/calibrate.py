@@ -21,7 +21,7 @@ import numpy as np
 
 from calib.boards import BoardSpec, DetectConfig, Detection, detect_board, reverse_if_flipped
 from calib.rig import StereoRig
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calib.rig import Rectification, StereoRig, rectify_pair
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 log = logging.getLogger(__name__)
 

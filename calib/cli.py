@@ -49,7 +49,7 @@ def register(subparsers) -> None:
 
 
 def _check_out_path(out: str):
-    from stereo_recon.errors import ConfigError
+    from stereo_recon.core.errors import ConfigError
 
     p = Path(out)
     if p.suffix.lower() not in (".yaml", ".yml", ".xml"):
@@ -60,17 +60,14 @@ def _check_out_path(out: str):
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    import os
-    import tempfile
-
     import cv2
 
     from calib.boards import parse_board
     from calib.calibrate import CalibConfig, calibrate_source, coverage_image
     from calib.io import save_rig
-    from calib.zedconf import write_zed_conf
-    from stereo_recon.errors import ConfigError, InputError, StageError
-    from stereo_recon.manifest import Stopwatch, run_manifest, write_json_atomic
+    from stereo_recon.core.atomic import staged_files, write_bytes_atomic, write_json_atomic
+    from stereo_recon.core.errors import ConfigError, InputError, StageError
+    from stereo_recon.core.manifest import Stopwatch, run_manifest
 
     out = _check_out_path(args.out)
     spec = parse_board(args.board)
@@ -101,38 +98,37 @@ def run_calibrate(args: argparse.Namespace) -> int:
                                                "min_views": cfg.min_views, "rational_model": cfg.rational_model,
                                                "refine_intrinsics": cfg.refine_intrinsics}, sw.timings_s)
     # write everything to temporary names first, then move into place: no half-written results
-    made_dirs = [d for d in [out.parent, *out.parent.parents] if not d.exists()]  # removed again on failure
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
-    done = False
-    try:
-        t_rig = save_rig(result.rig, tmp_dir / out.name)
-        t_rep = write_json_atomic(tmp_dir / report_path.name, rep)
-        t_cov = tmp_dir / cov_path.name
-        t_cov.write_bytes(buf.tobytes())
-        t_zed = None
+    with staged_files(out.parent, prefix=out.name) as tx:
+        tx.add(write_json_atomic(tx.temp(report_path.name), rep), report_path)
+        tx.add(write_bytes_atomic(tx.temp(cov_path.name), buf.tobytes()), cov_path)
+        tx.add(save_rig(result.rig, tx.temp(out.name)), out)
         if args.zed_conf:
-            try:
-                t_zed = write_zed_conf(result.rig, tmp_dir / "zed.conf")
-            except InputError as err:  # name the user's path, not the temporary one
-                raise InputError(str(err).replace(str(tmp_dir / "zed.conf"), f"--zed-conf {args.zed_conf}")) from None
-        for t, final in ((t_rep, report_path), (t_cov, cov_path), (t_rig, out)):
-            os.replace(t, final)
-        if t_zed is not None:
-            zp = Path(args.zed_conf)
-            if zp.is_dir() or args.zed_conf.endswith(("/", "\\")) or zp.suffix.lower() != ".conf":
-                zp = zp / "SN0.conf"
-            zp.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(t_zed, zp)
-        done = True
-    finally:
-        for f in tmp_dir.iterdir():
-            f.unlink()
-        tmp_dir.rmdir()
-        for d in made_dirs if not done else ():
-            if d.is_dir() and not any(d.iterdir()):
-                d.rmdir()
+            tx.add(_write_zed_conf_temp(result.rig, tx.temp("zed.conf"), args.zed_conf), _zed_conf_path(args.zed_conf))
+    _print_calibration(rep, out, report_path, cov_path)
+    return 0
 
+
+def _write_zed_conf_temp(rig, tmp: Path, zed_conf: str) -> Path:
+    """Write the rig as a ZED .conf to ``tmp``; an error names the user's ``--zed-conf`` path, not the temporary one."""
+    from calib.zedconf import write_zed_conf
+    from stereo_recon.core.errors import InputError
+
+    try:
+        return write_zed_conf(rig, tmp)
+    except InputError as err:
+        raise InputError(str(err).replace(str(tmp), f"--zed-conf {zed_conf}")) from None
+
+
+def _zed_conf_path(zed_conf: str) -> Path:
+    """Where ``--zed-conf`` puts the .conf: the path itself, or ``SN0.conf`` inside a folder."""
+    zp = Path(zed_conf)
+    if zp.is_dir() or zed_conf.endswith(("/", "\\")) or zp.suffix.lower() != ".conf":
+        zp = zp / "SN0.conf"
+    return zp
+
+
+def _print_calibration(rep: dict, out: Path, report_path: Path, cov_path: Path) -> None:
+    """The terminal summary of a calibration: errors, baseline, coverage, per-view RMS, files written."""
     rms, epi = rep["rms_px"], rep["epipolar_error_px"]
     print(f"calibrated from {rep['views_used']} views ({rep['views_rejected']} rejected as outliers; "
           f"board found in both eyes in {rep['found_in_both_eyes']} of {rep['looked_at']} looked at)")
@@ -153,14 +149,14 @@ def run_calibrate(args: argparse.Namespace) -> int:
         else:
             log.info("  %s: not used (%s)", v["view"], v.get("reason", ""))
     print(f"wrote {out}, {report_path.name}, {cov_path.name}")
-    return 0
 
 
 def _sample_pairs(src: Path, n: int):
-    from calib.calibrate import IMAGE_SUFFIXES, _read_image, _split_sbs, iter_folder_pairs, iter_video_pairs, video_info
+    from calib.calibrate import IMAGE_SUFFIXES, _read_image, iter_folder_pairs, iter_video_pairs, video_info
+    from stereo_recon.core.frames import split_side_by_side
 
     if src.is_file() and src.suffix.lower() in IMAGE_SUFFIXES:  # one side-by-side image
-        left, right = _split_sbs(_read_image(src), str(src))
+        left, right = split_side_by_side(_read_image(src), str(src), check_aspect=False)
         return [(src.name, left, right)], (left.shape[1], left.shape[0])
     if src.is_dir():
         pairs = list(iter_folder_pairs(src, max_pairs=n))
@@ -178,8 +174,8 @@ def run_calib_check(args: argparse.Namespace) -> int:
     from calib.calibrate import PairView, _detect_pair, epipolar_errors
     from calib.check import check_pairs
     from calib.io import parse_calib_arg
-    from stereo_recon.errors import ConfigError, InputError
-    from stereo_recon.manifest import write_json_atomic
+    from stereo_recon.core.errors import ConfigError, InputError
+    from stereo_recon.core.atomic import write_json_atomic
 
     src = Path(args.input)
     if not src.exists():
@@ -187,7 +183,7 @@ def run_calib_check(args: argparse.Namespace) -> int:
     if args.frames < 1:
         raise ConfigError(f"--frames {args.frames}: need at least 1")
     if args.out:
-        from stereo_recon.validate import check_output_file
+        from stereo_recon.core.validate import check_output_file
 
         check_output_file(args.out)
     spec = parse_board(args.board) if args.board else None

@@ -8,11 +8,9 @@ plus ``image_width``, ``image_height``, ``rectified`` and a ``metadata`` map (so
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import re
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -20,8 +18,8 @@ import numpy as np
 
 from calib.rig import StereoRig
 from calib.zedconf import read_zed_conf, write_zed_conf  # noqa: F401  (re-exported: calib.io.write_zed_conf)
-from stereo_recon.errors import InputError
-from stereo_recon.manifest import set_default_mode
+from stereo_recon.core.errors import InputError
+from stereo_recon.core.atomic import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -32,23 +30,6 @@ _MATRIX_KEYS = {"K1": ("K1", "M1", "cameraMatrix1", "camera_matrix_left"), "D1":
                 "R": ("R",), "T": ("T",)}
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _INLINE_RE = re.compile(rf"^\s*{_NUM}(?:\s*,\s*{_NUM})*\s*$")
-
-
-def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write text to ``path`` through a temporary file in the same folder and an atomic rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        set_default_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    return path
 
 
 # -- writing ---------------------------------------------------------------------------------
@@ -86,24 +67,15 @@ def _write_filestorage(path: Path, entries: dict[str, Any]) -> Path:
     """Write ``entries`` with cv2.FileStorage (format from the suffix) atomically."""
     import cv2
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    suffix = ".xml" if path.suffix.lower() == ".xml" else ".yaml"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    try:
+    def write(tmp: str) -> None:
         fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
         if not fs.isOpened():
             raise InputError(f"{path}: cannot open for writing")
         for k, v in entries.items():
             _write_value(fs, k, v)
         fs.release()
-        set_default_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    return path
+
+    return write_atomic(path, write, suffix=".xml" if path.suffix.lower() == ".xml" else ".yaml")
 
 
 def save_rig(rig: StereoRig, path: str | os.PathLike) -> Path:

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 log = logging.getLogger(__name__)
 

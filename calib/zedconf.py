@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from calib.rig import StereoRig, same_aspect
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -97,48 +97,68 @@ def read_zed_conf(path: str | os.PathLike, image_size: tuple[int, int] | None = 
         raise InputError(f"{path}: the [STEREO] section is missing")
     if image_size is not None:
         image_size = (int(image_size[0]), int(image_size[1]))
-        exact = [r for r in avail if ZED_RESOLUTIONS[r] == image_size]
-        if exact:
-            res = exact[0]
-        else:
-            same = [r for r in avail if same_aspect(ZED_RESOLUTIONS[r], image_size)]
-            if not same:
-                sizes = ", ".join(f"{r} {ZED_RESOLUTIONS[r][0]}x{ZED_RESOLUTIONS[r][1]}" for r in avail)
-                raise InputError(f"{path}: no calibration for {image_size[0]}x{image_size[1]} frames and none of the same "
-                                 f"aspect ratio to scale (file has {sizes})")
-            # Each ZED resolution is its own crop/binning of the sensor, so the video was most likely
-            # resized from the section of exactly its aspect and nearest size.
-            def _key(r: str) -> tuple[bool, float]:
-                w, h = ZED_RESOLUTIONS[r]
-                return (not same_aspect((w, h), image_size, 1e-3), abs(math.log(w / image_size[0])))
-
-            res = min(same, key=_key)
-            log.warning("%s: no section for %dx%d frames; scaling [%s] %dx%d (if the video was resized from another "
-                        "ZED resolution, resize it back or pass a matching calibration)", path, *image_size, res,
-                        *ZED_RESOLUTIONS[res])
+        res = _section_for_size(path, avail, image_size)
     else:
         res = (resolution or "HD").upper()
         if res not in avail:
             if resolution is not None:
                 raise InputError(f"{path}: no [LEFT_CAM_{res}] section (file has {', '.join(avail)})")
             res = avail[0]
+    (K1, D1), (K2, D2) = (_eye(path, f"{eye}_CAM_{res}", sections[f"{eye}_CAM_{res}"]) for eye in ("LEFT", "RIGHT"))
+    R, T = _stereo_extrinsics(path, sections["STEREO"], res)
+    serial = path.stem[2:] if path.stem.upper().startswith("SN") else None
+    meta = {"source": f"ZED factory calibration {path.name} [{res}]", "format": "zed-conf", "zed_resolution": res}
+    if serial:
+        meta["serial"] = serial
+    rig = StereoRig(K1=K1, D1=D1, K2=K2, D2=D2, R=R, T=T, image_size=ZED_RESOLUTIONS[res], metadata=meta)
+    if image_size is not None and image_size != rig.image_size:
+        rig = rig.scaled(image_size)
+    return rig
 
-    Ks, Ds = [], []
-    for eye in ("LEFT", "RIGHT"):
-        sec = f"{eye}_CAM_{res}"
-        vals = sections[sec]
-        fx, fy, cx, cy = (_float(path, sec, vals, k) for k in ("fx", "fy", "cx", "cy"))
-        for key, v in (("fx", fx), ("fy", fy)):
-            if v <= 0:
-                raise InputError(f"{path}: [{sec}] {key} = {v:g}: a focal length must be > 0 pixels")
-        for k in _UNSUPPORTED_DIST_KEYS:
-            if k in vals and _float(path, sec, vals, k, 0.0) != 0.0:
-                raise InputError(f"{path}: [{sec}] uses a lens model with the term '{k}' (beyond k1 k2 p1 p2 k3), which this "
-                                 "reader does not model; export rectified video with the ZED SDK and pass --calib "
-                                 "fx,fy,cx,cy,baseline_m instead")
-        Ks.append(np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]))
-        Ds.append(np.array([_float(path, sec, vals, k, 0.0) for k in _DIST_KEYS]))
-    st = sections["STEREO"]
+
+def _section_for_size(path: Path, avail: list[str], image_size: tuple[int, int]) -> str:
+    """The resolution whose section fits frames of ``image_size`` (w, h of one eye): exact, else the same aspect."""
+    exact = [r for r in avail if ZED_RESOLUTIONS[r] == image_size]
+    if exact:
+        return exact[0]
+    same = [r for r in avail if same_aspect(ZED_RESOLUTIONS[r], image_size)]
+    if not same:
+        sizes = ", ".join(f"{r} {ZED_RESOLUTIONS[r][0]}x{ZED_RESOLUTIONS[r][1]}" for r in avail)
+        raise InputError(f"{path}: no calibration for {image_size[0]}x{image_size[1]} frames and none of the same "
+                         f"aspect ratio to scale (file has {sizes})")
+
+    # Each ZED resolution is its own crop/binning of the sensor, so the video was most likely
+    # resized from the section of exactly its aspect and nearest size.
+    def _key(r: str) -> tuple[bool, float]:
+        w, h = ZED_RESOLUTIONS[r]
+        return (not same_aspect((w, h), image_size, 1e-3), abs(math.log(w / image_size[0])))
+
+    res = min(same, key=_key)
+    log.warning("%s: no section for %dx%d frames; scaling [%s] %dx%d (if the video was resized from another "
+                "ZED resolution, resize it back or pass a matching calibration)", path, *image_size, res,
+                *ZED_RESOLUTIONS[res])
+    return res
+
+
+def _eye(path: Path, sec: str, vals: dict[str, str]) -> tuple[np.ndarray, np.ndarray]:
+    """One eye's intrinsics K (3, 3) in pixels and distortion (k1 k2 p1 p2 k3) from its [<EYE>_CAM_<res>] section."""
+    fx, fy, cx, cy = (_float(path, sec, vals, k) for k in ("fx", "fy", "cx", "cy"))
+    for key, v in (("fx", fx), ("fy", fy)):
+        if v <= 0:
+            raise InputError(f"{path}: [{sec}] {key} = {v:g}: a focal length must be > 0 pixels")
+    for k in _UNSUPPORTED_DIST_KEYS:
+        if k in vals and _float(path, sec, vals, k, 0.0) != 0.0:
+            raise InputError(f"{path}: [{sec}] uses a lens model with the term '{k}' (beyond k1 k2 p1 p2 k3), which this "
+                             "reader does not model; export rectified video with the ZED SDK and pass --calib "
+                             "fx,fy,cx,cy,baseline_m instead")
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    return K, np.array([_float(path, sec, vals, k, 0.0) for k in _DIST_KEYS])
+
+
+def _stereo_extrinsics(path: Path, st: dict[str, str], res: str) -> tuple[np.ndarray, np.ndarray]:
+    """R (3, 3) and T (3,) metres of the right eye from the left, from [STEREO] (baseline in mm, Rodrigues angles)."""
+    import cv2
+
     baseline_mm = _float(path, "STEREO", st, "baseline")
     if baseline_mm <= 0:
         raise InputError(f"{path}: [STEREO] Baseline = {baseline_mm} mm; expected a positive distance in millimetres")
@@ -150,18 +170,8 @@ def read_zed_conf(path: str | os.PathLike, image_size: tuple[int, int] | None = 
     if len(missing_rot) == 3:
         raise InputError(f"{path}: [STEREO] is missing the keys {', '.join(missing_rot)} (the eyes' relative rotation)")
     rvec = np.array([_float(path, "STEREO", st, f"{k}_{r}", 0.0) for k in ("rx", "cv", "rz")])
-    import cv2
-
     R = cv2.Rodrigues(rvec.reshape(3, 1))[0]
-    T = np.array([-baseline_mm, ty, tz]) / 1000.0
-    serial = path.stem[2:] if path.stem.upper().startswith("SN") else None
-    meta = {"source": f"ZED factory calibration {path.name} [{res}]", "format": "zed-conf", "zed_resolution": res}
-    if serial:
-        meta["serial"] = serial
-    rig = StereoRig(K1=Ks[0], D1=Ds[0], K2=Ks[1], D2=Ds[1], R=R, T=T, image_size=ZED_RESOLUTIONS[res], metadata=meta)
-    if image_size is not None and image_size != rig.image_size:
-        rig = rig.scaled(image_size)
-    return rig
+    return R, np.array([-baseline_mm, ty, tz]) / 1000.0
 
 
 def _fmt(v: float) -> str:
@@ -214,6 +224,6 @@ def write_zed_conf(rig: StereoRig, path: str | os.PathLike, serial: int = 0,
     lines.append("[MISC]")
     lines.append("Sensor_ID=0")
     lines.append("")
-    from calib.io import atomic_write_text
+    from stereo_recon.core.atomic import write_text_atomic
 
-    return atomic_write_text(path, "\n".join(lines))
+    return write_text_atomic(path, "\n".join(lines))

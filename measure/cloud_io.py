@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 SUPPORTED_SUFFIXES = (".ply", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
 
@@ -135,13 +135,3 @@ def _read_pts(p: Path) -> np.ndarray:
     except (ValueError, IndexError, UnicodeDecodeError, OSError) as err:
         raise InputError(f"{p}: cannot read PTS file ({' '.join(str(err).split())[:120]})") from None
     return data.astype(np.float64)
-
-
-def write_cloud(path: str | os.PathLike, points: np.ndarray) -> Path:
-    """Write (N, 3) points as a binary PLY/PCD (by suffix) or text XYZ through Open3D."""
-    import open3d as o3d
-
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
-    if not o3d.io.write_point_cloud(str(path), pc, write_ascii=Path(path).suffix.lower() in (".xyz", ".pts")):
-        raise InputError(f"{path}: could not write point cloud")
-    return Path(path)

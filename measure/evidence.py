@@ -1,14 +1,13 @@
-"""Evidence for the report: the recording's own date/time, and a frame of the video with the measured box drawn on it.
+"""Evidence for the report: the recording's own date/time, and the measured box drawn into a camera's image.
 
-Both read what the reconstruction left in the run folder (``run.json``: source video, rig intrinsics and
-distortion; ``poses.txt``: TUM world-from-left-camera poses) and the measurement (its ground frame and
-fitted rectangle), so they work for any run folder, and say "not available" rather than guess.
+Pure geometry over the measurement (its ground frame and fitted rectangle) and given poses and intrinsics:
+the measure layer never reads a reconstruction. Taking a frame of the run's video at the best pose is the
+application's (:mod:`stereo_recon.app.evidence`), which hands the result to ``measure_cloud_file``.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import logging
 import os
 from pathlib import Path
@@ -103,56 +102,18 @@ def best_view(corners_w: np.ndarray, poses: list[tuple[float, np.ndarray]], K: n
     return best
 
 
-def keyframe_with_box(run_dir: str | os.PathLike, measurement: Mapping[str, Any], out_path: str | os.PathLike) -> dict | None:
-    """Draw the measured box on the video frame that shows it largest; write a JPEG. None when not possible.
+def draw_box(img: np.ndarray, corners_w: np.ndarray, T_wc: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """Draw the box's 12 edges on a BGR image (in place; returned): roof amber, the rest red.
 
-    run_dir: the run folder (``run.json`` with the source and the rig, ``poses.txt``). The box is projected into
-    the physical left camera's raw frame with its intrinsics K1 and distortion D1 (run.json ``rig``), at the pose
-    poses.txt gives for that frame. Returns {"frame": index, "time_s": t, "path": out_path}.
+    corners_w: (8, 3) from :func:`box_corners_world`, metres. T_wc: (4, 4) world-from-camera pose.
+    K, D: the camera's OpenCV intrinsics (3, 3) and distortion, pixels of ``img``.
     """
     import cv2
 
-    from stereo_recon.errors import StereoReconError
-    from stereo_recon.trajectory import read_tum
-    from stereo_recon.video import open_stereo_source
-
-    run_dir = Path(run_dir)
-    corners = box_corners_world(measurement)
-    try:
-        run = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
-        rig = run["rig"]
-        K, D = np.asarray(rig["K1"], float), np.asarray(rig["D1"], float).reshape(-1)
-        size = tuple(int(v) for v in rig["image_size"])
-        fps = float(run["source"]["fps"])
-        video = Path(run["source"]["path"])
-        traj = read_tum(run_dir / "poses.txt", fps=fps)
-    except (OSError, KeyError, TypeError, ValueError, json.JSONDecodeError, StereoReconError) as err:
-        log.info("keyframe: no run folder to take a frame from (%s)", err)
-        return None
-    poses = list(zip(traj.timestamps_s, traj.T_wc))
-    if corners is None or not poses or not video.exists():
-        return None
-    i = best_view(corners, poses, K, D, size)
-    if i is None:
-        log.info("keyframe: no frame shows the whole box")
-        return None
-    t, T = poses[i]
-    index = int(traj.indices[i])
-    try:
-        frame = next(iter(open_stereo_source(video, (index, index + 1), 1)))
-    except Exception as err:  # the video moved or cannot be decoded there: the report goes without the picture
-        log.warning("keyframe: cannot read frame %d of %s (%s)", index, video, err)
-        return None
-    img = np.ascontiguousarray(frame.left)
-    if (img.shape[1], img.shape[0]) != size:
-        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
-    px, _ = _project(corners, T, K, D)
-    thick = max(2, size[0] // 400)
+    px, _ = _project(corners_w, T_wc, K, D)
+    thick = max(2, img.shape[1] // 400)
     for a, b in _BOX_EDGES:
         colour = (0, 215, 255) if a >= 4 and b >= 4 else (40, 40, 230)  # roof amber, the rest red (BGR)
         p0, p1 = (int(round(v)) for v in px[a]), (int(round(v)) for v in px[b])
         cv2.line(img, tuple(p0), tuple(p1), colour, thick, cv2.LINE_AA)
-    out_path = Path(out_path)
-    if not cv2.imwrite(str(out_path), img, [cv2.IMWRITE_JPEG_QUALITY, 85]):
-        return None
-    return {"frame": index, "time_s": t, "path": str(out_path)}
+    return img

@@ -32,7 +32,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
-from stereo_recon.errors import ConfigError, InputError
+from stereo_recon.core.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
 

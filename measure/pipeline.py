@@ -18,7 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError, InputError, StageError
+from stereo_recon.core.errors import ConfigError, InputError, StageError
+from stereo_recon.core.manifest import library_versions, sha256_file, to_jsonable
+from stereo_recon.core.paths import RunPaths
 
 log = logging.getLogger(__name__)
 
@@ -79,14 +81,10 @@ class MeasureConfig:
 
 def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
     """A MeasureConfig from a mapping; unknown keys or wrongly typed values -> ConfigError."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where}: expected a mapping of measure parameters, got {type(data).__name__}")
-    if "measure" in data and isinstance(data["measure"], dict) and len(data) == 1:
-        data = data["measure"]
+    from stereo_recon.core.config import known_keys
+
+    data = known_keys(data, MeasureConfig, where, "measure parameters", section="measure")
     known = {f.name: f for f in fields(MeasureConfig)}
-    unknown = sorted(set(data) - set(known))
-    if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(known)})")
     defaults = MeasureConfig()
     kw = {}
     for k, v in data.items():
@@ -111,25 +109,9 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
 
 def load_config(path: str | os.PathLike) -> MeasureConfig:
     """Read a TOML or YAML file of MeasureConfig fields (optionally under a ``[measure]`` table)."""
-    p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"{p}: config file not found")
-    try:
-        if p.suffix.lower() == ".toml":
-            import tomllib
+    from stereo_recon.core.config import read_config_file
 
-            data = tomllib.loads(p.read_text())
-        elif p.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            data = yaml.safe_load(p.read_text()) or {}
-        else:
-            raise ConfigError(f"{p}: config must be .toml, .yaml or .yml")
-    except ConfigError:
-        raise
-    except Exception as err:
-        raise ConfigError(f"{p}: cannot parse config ({' '.join(str(err).split())[:160]})") from None
-    return config_from_dict(data, where=str(p))
+    return config_from_dict(read_config_file(path), where=str(Path(path)))
 
 
 @dataclass
@@ -154,8 +136,6 @@ class Measurement:
 
     def summary(self) -> dict:
         """The JSON-ready part (no per-point arrays)."""
-        from stereo_recon.manifest import to_jsonable
-
         return to_jsonable({
             "length_m": self.length_m,
             "width_m": self.width_m,
@@ -206,17 +186,57 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     the truck among several candidates. rng: seed for subsampling and bootstrap.
     Raises InputError (bad points), StageError (no ground / no truck / ambiguous trucks).
     """
-    from scipy.spatial import cKDTree
-
     from measure.dimensions import DimensionConfig, measure_dimensions
-    from measure.fof import fof_clusters
-    from measure.ground import ground_plane
-    from measure.resolution import point_resolution
-    from measure.truck import TruckFilter, ground_frame, merge_truck_parts, select_truck
+    from measure.truck import ground_frame
 
     cfg = config
     timings: dict[str, float] = {}
     t_all = time.perf_counter()
+    p = _checked_points(points_xyz, cfg, source)
+    up = _parse_vec(up_hint, "up hint")
+    centre = _parse_vec(centre_hint, "centre hint")
+
+    t = time.perf_counter()
+    res = _resolution(p, cfg, rng, source)
+    timings["resolution"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    g = _ground(p, cfg, res, up, rng, source)
+    timings["ground"] = time.perf_counter() - t
+    above = p[g.keep]
+    if len(above) < cfg.min_cluster_points:
+        raise StageError("measure", f"{source}: no truck-like cluster (only {len(above)} points above the ground layer of {g.d_h:.3g} m)")
+
+    R = ground_frame(g.plane.normal)
+    tvec = np.array([0.0, 0.0, g.plane.offset])
+    xyz_g = above @ R.T + tvec     # Eqs. 5-6
+    centre_xy = None if centre is None else (R @ centre + tvec)[:2]
+    truck, filt, eps, cstats = _truck_points(above, xyz_g, centre_xy, cfg, res, timings, source)
+
+    t = time.perf_counter()
+    dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
+                           roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap)
+    dims = measure_dimensions(truck, res, noise_m=g.plane.rms_m, config=dcfg, rng=rng)
+    timings["dimensions"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_all
+
+    params = dataclasses.asdict(cfg)
+    params["resolved"] = {"resolution_m": res, "ground_band_m": g.xi, "ground_thickness_m": g.d_h, "eps_m": eps,
+                          "min_length_m": filt.min_length_m, "min_width_m": filt.min_width_m, "min_height_m": filt.min_height_m,
+                          "resolution_measured": cfg.resolution_m is None}
+    params["up_hint"] = up
+    params["centre_hint"] = centre
+    cstats["n_truck_points"] = int(len(truck))
+    return Measurement(
+        length_m=float(dims["length_m"]), width_m=float(dims["width_m"]), height_m=float(dims["height_m"]),
+        uncertainty_m=dims["uncertainty_m"], rules=dims["rules"], bandwidths_m=dims["bandwidths_m"],
+        ground=g.record(), clusters=cstats, parameters=params, timings_s=timings, n_points=len(p),
+        truck_xyz_ground=truck, frame_rotation=R, frame_translation=tvec, details=dims,
+    )
+
+
+def _checked_points(points_xyz: np.ndarray, cfg: MeasureConfig, source: str) -> np.ndarray:
+    """The points as (N, 3) float64; InputError for a wrong shape, NaN/inf, or too few points."""
     p = np.asarray(points_xyz, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3:
         raise InputError(f"{source}: points must be an (N, 3) array, got shape {p.shape}")
@@ -224,10 +244,15 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
         raise InputError(f"{source}: points contain NaN or infinite coordinates")
     if len(p) < max(100, cfg.min_cluster_points):
         raise InputError(f"{source}: only {len(p)} points, at least {max(100, cfg.min_cluster_points)} are needed")
-    up = _parse_vec(up_hint, "up hint")
-    centre = _parse_vec(centre_hint, "centre hint")
+    return p
 
-    t = time.perf_counter()
+
+def _resolution(p: np.ndarray, cfg: MeasureConfig, rng, source: str) -> float:
+    """The cloud's point spacing, metres: ``cfg.resolution_m`` or the measured median nearest-neighbour distance."""
+    from scipy.spatial import cKDTree
+
+    from measure.resolution import point_resolution
+
     if cfg.resolution_m is not None:
         res = float(cfg.resolution_m)
     else:
@@ -235,12 +260,36 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
                                tree=cKDTree(p, balanced_tree=False, compact_nodes=False))
     if not res > 0:
         raise InputError(f"{source}: most points are exact duplicates; cannot measure the point spacing")
-    timings["resolution"] = time.perf_counter() - t
+    return res
+
+
+@dataclass
+class _Ground:
+    """The ground step's result: the plane, band ξ and removal thickness d_h (metres), and what it measured."""
+
+    plane: Any
+    xi: float
+    d_h: float
+    layer_sigma: float
+    contrast: float
+    keep: np.ndarray      # (N,) bool: points above the ground layer
+
+    def record(self) -> dict:
+        """measurement.json's ``ground_plane``."""
+        plane = self.plane
+        return {"normal": plane.normal, "offset_m": plane.offset, "equation": "normal . p + offset_m = 0 (normal points up)",
+                "inlier_rate": plane.inlier_rate, "n_inliers": plane.n_inliers, "rms_m": plane.rms_m, "iterations": plane.iterations,
+                "initial_normal": plane.initial_normal, "initial_normal_source": plane.initial_normal_source,
+                "n_above_ground": int(self.keep.sum()), "layer_contrast": self.contrast, "layer_sigma_m": self.layer_sigma,
+                "band_xi_m": self.xi, "n_removed": int((~self.keep).sum())}
+
+
+def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str) -> _Ground:
+    """Algorithm 1 with the band widened to a noisy layer's own thickness; StageError when there is no ground."""
+    from measure.ground import ground_plane
+
     xi = cfg.ground_band_m or cfg.ground_band_res * res
     d_h = cfg.ground_thickness_m or cfg.ground_thickness_res * res
-    eps = cfg.eps_m or cfg.eps_res * res
-
-    t = time.perf_counter()
     try:
         plane = ground_plane(p, xi, up_hint=up, max_iter=cfg.ground_max_iter, rng=rng)
         # A fused stereo cloud's ground is thicker than its point spacing (depth noise grows
@@ -271,16 +320,19 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     if contrast < cfg.min_ground_contrast:
         raise StageError("measure", f"{source}: no ground plane (the densest layer holds {n_band} points, only {contrast:.2f} x its neighbouring layers; "
                                     f"a ground needs >= {cfg.min_ground_contrast:g} x)")
-    keep = hgt > d_h   # remove_ground(p, plane, d_h), reusing the heights
-    timings["ground"] = time.perf_counter() - t
-    above = p[keep]
-    if len(above) < cfg.min_cluster_points:
-        raise StageError("measure", f"{source}: no truck-like cluster (only {len(above)} points above the ground layer of {d_h:.3g} m)")
+    return _Ground(plane, xi, d_h, layer_sigma, contrast, keep=hgt > d_h)   # remove_ground(p, plane, d_h), reusing the heights
 
-    R = ground_frame(plane.normal)
-    tvec = np.array([0.0, 0.0, plane.offset])
-    xyz_g = above @ R.T + tvec     # Eqs. 5-6
 
+def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfig, res: float, timings: dict,
+                  source: str):
+    """Algorithm 2 and the truck filters: (truck points in the ground frame, the TruckFilter, ε in metres, cluster stats).
+
+    above: points above the ground (input frame); xyz_g: the same in the ground frame. Adds 'fof' and 'truck' to timings.
+    """
+    from measure.fof import fof_clusters
+    from measure.truck import TruckFilter, merge_truck_parts, select_truck
+
+    eps = cfg.eps_m or cfg.eps_res * res
     t = time.perf_counter()
     labels = fof_clusters(above, eps)
     timings["fof"] = time.perf_counter() - t
@@ -294,7 +346,6 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
         min_height_to_width=cfg.min_height_to_width, max_height_to_width=cfg.max_height_to_width,
         ambiguity_ratio=cfg.ambiguity_ratio,
     )
-    centre_xy = None if centre is None else (R @ centre + tvec)[:2]
     chosen, cstats = select_truck(xyz_g, labels, filt, centre_xy, source=source)
     if cfg.merge_gap_res > 0:
         parts = merge_truck_parts(xyz_g, labels, chosen, cfg.merge_gap_res * res, max(cfg.min_cluster_points // 5, 20))
@@ -303,31 +354,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     cstats["merged_labels"] = parts
     truck = xyz_g[np.isin(labels, parts)]
     timings["truck"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
-                           roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap)
-    dims = measure_dimensions(truck, res, noise_m=plane.rms_m, config=dcfg, rng=rng)
-    timings["dimensions"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t_all
-
-    params = dataclasses.asdict(cfg)
-    params["resolved"] = {"resolution_m": res, "ground_band_m": xi, "ground_thickness_m": d_h, "eps_m": eps,
-                          "min_length_m": filt.min_length_m, "min_width_m": filt.min_width_m, "min_height_m": filt.min_height_m,
-                          "resolution_measured": cfg.resolution_m is None}
-    params["up_hint"] = up
-    params["centre_hint"] = centre
-    ground = {"normal": plane.normal, "offset_m": plane.offset, "equation": "normal . p + offset_m = 0 (normal points up)",
-              "inlier_rate": plane.inlier_rate, "n_inliers": plane.n_inliers, "rms_m": plane.rms_m, "iterations": plane.iterations,
-              "initial_normal": plane.initial_normal, "initial_normal_source": plane.initial_normal_source,
-              "n_above_ground": int(keep.sum()), "layer_contrast": contrast, "layer_sigma_m": layer_sigma, "band_xi_m": xi, "n_removed": int((~keep).sum())}
-    cstats["n_truck_points"] = int(len(truck))
-    return Measurement(
-        length_m=float(dims["length_m"]), width_m=float(dims["width_m"]), height_m=float(dims["height_m"]),
-        uncertainty_m=dims["uncertainty_m"], rules=dims["rules"], bandwidths_m=dims["bandwidths_m"],
-        ground=ground, clusters=cstats, parameters=params, timings_s=timings, n_points=len(p),
-        truck_xyz_ground=truck, frame_rotation=R, frame_translation=tvec, details=dims,
-    )
+    return truck, filt, eps, cstats
 
 
 def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_rel_sigma: dict | None,
@@ -338,7 +365,7 @@ def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_r
     uncertainty). reconstruction_rel_sigma: {length, width, height} relative standard error of the
     cloud itself (e.g. 0.0144 = 1.44 % of the width), or None when the cloud is taken as exact.
     reconstruction_abs_m: a further standard error of the cloud in metres per dimension (the depth
-    geometry's, ``stereo_recon.uncertainty.depth_sigma_m``), or None.
+    geometry's, ``stereo_recon.app.uncertainty.depth_sigma_m``), or None.
     Returns (uncertainty_m, parts or None); ConfigError for a negative or non-finite share.
     """
     from measure.limits import DIMENSIONS
@@ -367,7 +394,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
                        reconstruction_rel_sigma: dict | None = None, progress=None, case: dict | None = None,
                        reconstruction_abs_m: dict | None = None,
                        units: str = "m", centre_strict: bool = False,
-                       checks: list[dict] | None = None, camera_centres=None, record_path=None) -> dict:
+                       checks: list[dict] | None = None, camera_centres=None, record_path=None, keyframe=None) -> dict:
     """Measure the truck in a cloud file; write ``out_dir/measurement.json`` (+ PNG plots, report.html).
 
     Output is written into a staging folder and moved into ``out_dir`` only when everything
@@ -387,7 +414,9 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     progress: optional callback (stage, done, total or None): 'measure', 'plots', 'report'.
     case: optional {site, operator, case_id} shown in the report (``case`` in measurement.json).
     When the cloud's folder is a run folder (run.json, poses.txt), ``recording`` names the source video and
-    calibration with their sha256 and the recording time, and a keyframe with the measured box joins the plots.
+    calibration with their sha256 and the recording time; with ``keyframe`` (a callable
+    ``(run_dir, measurement, out_path) -> {frame, time_s, path} or None``, e.g.
+    ``stereo_recon.app.evidence.keyframe_with_box``) a frame with the measured box joins the plots.
     The record validates against ``measure/schemas/measurement.schema.json`` (``schema_version``).
     ``data_quality`` {ok, checks}: ``checks`` given (the recording's gates) plus the truck's own
     (faces seen; orbit arc and camera motion when ``camera_centres`` (N, 3), cloud frame, are given);
@@ -400,10 +429,8 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     only) is refused (``measure.quality.check_plausible``).
     """
     from measure.cloud_io import read_cloud
-    from measure.limits import load_regulation, over_limit_verdict
-    from measure.quality import (UNITS_M, apply_data_quality, check_centre, check_plausible, data_quality, face_checks,
-                                 orbit_checks)
-    from stereo_recon.manifest import library_versions, sha256_file, staged_output_dir, to_jsonable, write_json_atomic
+    from measure.limits import load_regulation
+    from measure.quality import UNITS_M
 
     cloud_path = Path(cloud_path)
     report = progress or (lambda stage, done, total: None)
@@ -419,19 +446,52 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     name = str(record_path) if record_path is not None else str(cloud_path)
     centre = None if centre_hint is None else np.asarray(centre_hint, float) * (UNITS_M[units] if centre_strict else 1.0)
     m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=name)
+    gates = _quality_gates(m, scale, units, name, centre if centre_strict else None, checks, camera_centres)
+    values = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
+    uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma, reconstruction_abs_m)
+    verdict = _verdict(values, uncertainty, reg, vehicle_class, scale, k_sigma, gates)
+    summary = m.summary()
+    timings = dict(summary.pop("timings_s"), read=t_read)
+    result = _record(m, summary, uncertainty, parts, verdict, gates,
+                     {"path": str(recorded), "sha256": sha256_file(cloud_path), "n_points": len(pts), "units": units},
+                     {"name": regulation, "vehicle_class": vehicle_class, "scale": scale, "k_sigma": k_sigma}, case)
+    run_info = _run_info(cloud_path.parent)
+    if run_info:
+        result["recording"] = _recording(run_info)
+    manifest = {"command": "measure", "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "input": result["input"], "timings_s": timings}
+    _write_folder(out_dir, m, result, manifest, report, scale=scale, plots=plots, html=html, run_info=run_info,
+                  keyframe=(lambda dest: keyframe(cloud_path.parent, to_jsonable(result), dest)) if keyframe and run_info else None)
+    return to_jsonable(result)
+
+
+def _quality_gates(m: Measurement, scale, units: str, name: str, strict_centre, checks, camera_centres) -> list[dict]:
+    """Refuse a cloud that cannot be a vehicle; the data-quality gates: the given ``checks`` plus the truck's own."""
+    from measure.quality import check_centre, check_plausible, face_checks, orbit_checks
+
     check_plausible(m, scale, units, name)
-    if centre_strict and centre is not None:
-        check_centre(m, centre, name)
+    if strict_centre is not None:
+        check_centre(m, strict_centre, name)
     gates = list(checks or []) + face_checks(m)
     if camera_centres is not None and len(camera_centres):
         gates += orbit_checks(m, camera_centres)
-    sha = sha256_file(cloud_path)
-    values = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
-    uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma, reconstruction_abs_m)
+    return gates
+
+
+def _verdict(values: dict, uncertainty: dict, reg, vehicle_class, scale, k_sigma: float, gates: list[dict]) -> dict:
+    """The over-limit verdict against the regulation, made ``undecided`` by a failed data-quality gate."""
+    from measure.limits import over_limit_verdict
+    from measure.quality import apply_data_quality
+
     verdict = over_limit_verdict(values, uncertainty, reg, vehicle_class=vehicle_class, scale=scale, k_sigma=k_sigma)
-    verdict = apply_data_quality(verdict, gates)
-    summary = m.summary()
-    timings = dict(summary.pop("timings_s"), read=t_read)
+    return apply_data_quality(verdict, gates)
+
+
+def _record(m: Measurement, summary: dict, uncertainty: dict, parts, verdict: dict, gates: list[dict], inp: dict,
+            regulation: dict, case: dict | None) -> dict:
+    """measurement.json's content (before the recording and plots are added); see :func:`measure_cloud_file`."""
+    from measure.quality import data_quality
+
     result = {
         "schema_version": SCHEMA_VERSION,
         "length_m": m.length_m, "width_m": m.width_m, "height_m": m.height_m, "uncertainty_m": uncertainty,
@@ -439,37 +499,41 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
         "verdict": verdict,
         "data_quality": data_quality(gates),
         **{k: v for k, v in summary.items() if k not in ("length_m", "width_m", "height_m", "uncertainty_m")},
-        "input": {"path": str(recorded), "sha256": sha, "n_points": len(pts), "units": units},
-        "input_path": str(recorded), "input_sha256": sha,
-        "regulation": {"name": regulation, "vehicle_class": vehicle_class, "scale": scale, "k_sigma": k_sigma},
+        "input": inp,
+        "input_path": inp["path"], "input_sha256": inp["sha256"],
+        "regulation": regulation,
         "versions": library_versions(),
         "stage": "measure",
     }
     case = {k: str(v) for k, v in (case or {}).items() if v}
     if case:
         result["case"] = case
-    run_info = _run_info(cloud_path.parent)
-    if run_info:
-        result["recording"] = _recording(run_info)
-    manifest = {"command": "measure", "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "input": result["input"], "timings_s": timings}
+    return result
+
+
+def _write_folder(out_dir, m: Measurement, result: dict, manifest: dict, report, scale, plots: bool, html: bool,
+                  run_info: dict | None, keyframe) -> None:
+    """Write measurement.json, measure_run.json, the plots, the keyframe and report.html as one folder transaction.
+
+    keyframe: ``keyframe(dest) -> {frame, time_s, path} or None`` drawing the measured box on a frame, or None.
+    """
+    from stereo_recon.core.atomic import staged_output_dir, write_json_atomic
+
     with staged_output_dir(out_dir) as tmp:
+        out = RunPaths(tmp)
         images: dict[str, Path] = {}
         if plots:
             report("plots", 0, None)
             t = time.perf_counter()
             images = write_plots(m, tmp, scale=scale)
-            if run_info:
-                from measure.evidence import keyframe_with_box
-
-                kf = keyframe_with_box(cloud_path.parent, to_jsonable(result), tmp / "keyframe.jpg")
-                if kf is not None:
-                    images["keyframe"] = Path(kf["path"])
-                    result["recording"]["keyframe"] = {"frame": kf["frame"], "time_s": kf["time_s"]}
-            timings["plots"] = time.perf_counter() - t
+            kf = keyframe(out.keyframe) if keyframe is not None else None
+            if kf is not None:
+                images["keyframe"] = Path(kf["path"])
+                result["recording"]["keyframe"] = {"frame": kf["frame"], "time_s": kf["time_s"]}
+            manifest["timings_s"]["plots"] = time.perf_counter() - t
         result["plots"] = {k: v.name for k, v in images.items()}
-        write_json_atomic(tmp / "measurement.json", result)
-        write_json_atomic(tmp / "measure_run.json", manifest)
+        write_json_atomic(out.measurement, result)
+        write_json_atomic(out.measure_run, manifest)
         if html:
             try:
                 from measure.report_html import render_report_html
@@ -477,9 +541,8 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
                 render_report_html = None
             if render_report_html is not None:
                 report("report", 0, None)
-                render_report_html(to_jsonable(dict(result, created_utc=manifest["created_utc"])), images,
-                                   tmp / "report.html", run_info=run_info)
-    return to_jsonable(result)
+                render_report_html(to_jsonable(dict(result, created_utc=manifest["created_utc"])), images, out.report,
+                                   run_info=run_info)
 
 
 def _run_info(folder: Path) -> dict | None:
@@ -487,7 +550,7 @@ def _run_info(folder: Path) -> dict | None:
     import json
 
     try:
-        info = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+        info = json.loads(RunPaths(folder).run_json.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     return info if isinstance(info, dict) else None

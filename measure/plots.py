@@ -8,16 +8,16 @@ written to a temporary sibling and renamed into place, so a plot is never half-w
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
-import tempfile
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+
+from stereo_recon.core.atomic import write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -49,22 +49,8 @@ def _height_for_aspect(width_in: float, span_x_m: float, span_y_m: float) -> flo
 
 
 def _save_atomic(fig: Figure, path: str | os.PathLike) -> Path:
-    """Render ``fig`` to PNG at ``path`` via a temporary file and an atomic rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png", dpi=DPI)
-        umask = os.umask(0)  # mkstemp makes 0600 files; use what a plain open() would give
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    return path
+    """Render ``fig`` to PNG at ``path`` atomically (:func:`stereo_recon.core.atomic.write_atomic`)."""
+    return write_atomic(path, lambda tmp: fig.savefig(tmp, format="png", dpi=DPI), suffix=".png")
 
 
 def subsample(points: np.ndarray, max_points: int = MAX_SCATTER_POINTS, seed: int = 0) -> np.ndarray:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereo_recon.errors import InputError, StageError
+from stereo_recon.core.errors import InputError, StageError
 
 UNITS_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}   # --units: metres per unit of the cloud's coordinates
 

@@ -7,19 +7,19 @@ every text from the measurement is HTML-escaped. The file is written atomically.
 from __future__ import annotations
 
 import base64
-import contextlib
 import html
 import json
 import logging
 import math
 import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Mapping
 
-from stereo_recon.errors import InputError
-from stereo_recon.manifest import to_jsonable
+from stereo_recon.core.errors import InputError
+from stereo_recon.core.atomic import write_text_atomic
+from stereo_recon.core.manifest import to_jsonable
+from stereo_recon.core.paths import RunPaths
 
 log = logging.getLogger(__name__)
 
@@ -352,7 +352,7 @@ def render_report_html(
     add("<footer>stereo-recon: truck outer dimensions from drone stereo video. "
         "The verdict compares the measurement interval with the regulation's limits; a legal decision "
         "remains with the officer.</footer></body></html>")
-    return _write_atomic(Path(out_path), "\n".join(parts))
+    return write_text_atomic(Path(out_path), "\n".join(parts))
 
 
 def _dimensions_block(measurement: Mapping, verdict: Mapping) -> str:
@@ -443,28 +443,6 @@ def _provenance_block(measurement: Mapping, run_info: Mapping, sha_rows: list) -
     return "".join(out)
 
 
-def _write_atomic(path: Path, text: str) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        _chmod_default(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    return path
-
-
-def _chmod_default(path: str) -> None:
-    """mkstemp creates 0600 files; give the report the permissions a plain open() would (0666 & ~umask)."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(path, 0o666 & ~umask)
-
-
 def render_report_from_dir(run_dir: str | os.PathLike, out_path: str | os.PathLike | None = None,
                            run_info: Mapping[str, Any] | None = None) -> Path:
     """Render ``report.html`` from an output folder: its measurement.json, every PNG in it, and run info.
@@ -476,7 +454,7 @@ def render_report_from_dir(run_dir: str | os.PathLike, out_path: str | os.PathLi
     Raises InputError when measurement.json is missing or unreadable.
     """
     run_dir = Path(run_dir)
-    mpath = run_dir / "measurement.json"
+    mpath = RunPaths(run_dir).measurement
     try:
         measurement = json.loads(mpath.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -487,7 +465,7 @@ def render_report_from_dir(run_dir: str | os.PathLike, out_path: str | os.PathLi
         raise InputError(f"{mpath}: not a measurement record (expected a JSON object)")
     if run_info is None:
         run_info = {}
-        rpath = run_dir / "run.json"
+        rpath = RunPaths(run_dir).run_json
         if rpath.is_file():
             try:
                 loaded = json.loads(rpath.read_text(encoding="utf-8"))
@@ -495,4 +473,4 @@ def render_report_from_dir(run_dir: str | os.PathLike, out_path: str | os.PathLi
             except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
                 log.warning("report: ignoring unreadable %s (%s)", rpath, err)
     images = {p.stem: p for p in sorted(run_dir.glob("*.png"))}
-    return render_report_html(measurement, images, out_path if out_path is not None else run_dir / "report.html", run_info)
+    return render_report_html(measurement, images, out_path if out_path is not None else RunPaths(run_dir).report, run_info)

@@ -7,6 +7,8 @@ import json
 from importlib import resources
 from typing import Any
 
+from stereo_recon.core.paths import RunPaths
+
 SCHEMA_FILE = "measurement.schema.json"
 
 
@@ -39,7 +41,7 @@ def read_measurement(path) -> dict:
 
     path = Path(path)
     if path.is_dir():
-        path = path / "measurement.json"
+        path = RunPaths(path).measurement
     record = json.loads(path.read_text(encoding="utf-8"))
     validate_measurement(record)
     return record

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereo_recon.errors import StageError
+from stereo_recon.core.errors import StageError
 
 log = logging.getLogger(__name__)
 

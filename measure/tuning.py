@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from measure.pipeline import MeasureConfig, measure_points
-from stereo_recon.errors import ConfigError, StereoReconError
+from stereo_recon.core.errors import ConfigError, StereoReconError
 
 log = logging.getLogger(__name__)
 

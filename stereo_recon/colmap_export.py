@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
+from stereo_recon.core.paths import RunPaths
 
 log = logging.getLogger(__name__)
 
@@ -48,16 +49,16 @@ def export_colmap(run_dir: str | os.PathLike, out_dir: str | os.PathLike, write_
     """
     import pycolmap
 
-    from stereo_recon.manifest import staged_output_dir
+    from stereo_recon.core.atomic import staged_output_dir
     from stereo_recon.trajectory import read_tum
 
     run_dir, out_dir = Path(run_dir), Path(out_dir)
     try:
-        run = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+        run = json.loads(RunPaths(run_dir).run_json.read_text(encoding="utf-8"))
         rig, fps, views = run["rig"], float(run["source"]["fps"]), [int(i) for i in run["fused_views"]]
     except (OSError, KeyError, TypeError, ValueError) as err:
-        raise InputError(f"{run_dir / 'run.json'}: not a reconstruction manifest with fused views ({err})") from None
-    traj = read_tum(run_dir / "poses.txt", fps=fps)
+        raise InputError(f"{RunPaths(run_dir).run_json}: not a reconstruction manifest with fused views ({err})") from None
+    traj = read_tum(RunPaths(run_dir).poses, fps=fps)
     pose_of = {int(i): T for i, T in zip(traj.indices, traj.T_wc)}
     K, D = np.asarray(rig["K1"], float), np.asarray(rig["D1"], float)
     w, h = (int(v) for v in rig["image_size"])

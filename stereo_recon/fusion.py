@@ -15,11 +15,10 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError, InputError, StageError
+from stereo_recon.core.errors import ConfigError, InputError, StageError
 
 log = logging.getLogger(__name__)
 
@@ -378,24 +377,6 @@ class TSDFFusion:
         self._require_grid()
         wt = self.config.min_weight if min_weight is None else min_weight
         return self._vbg.extract_triangle_mesh(weight_threshold=float(wt)).to_legacy()
-
-
-def write_cloud_ply(path, points_xyz: np.ndarray, colors_rgb: np.ndarray | None = None,
-                    normals: np.ndarray | None = None) -> Path:
-    """Write a binary PLY point cloud (points (N,3) m; colours (N,3) RGB in [0, 1] or uint8; unit normals (N,3))."""
-    import open3d as o3d
-
-    path = Path(path)
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points_xyz, dtype=np.float64)))
-    if colors_rgb is not None and len(colors_rgb):
-        c = np.asarray(colors_rgb)
-        c = c / 255.0 if c.dtype == np.uint8 else c
-        pcd.colors = o3d.utility.Vector3dVector(np.asarray(c, dtype=np.float64))
-    if normals is not None and len(normals):
-        pcd.normals = o3d.utility.Vector3dVector(np.asarray(normals, dtype=np.float64))
-    if not o3d.io.write_point_cloud(str(path), pcd, write_ascii=False):
-        raise OSError(f"{path}: could not write point cloud")
-    return path
 
 
 def estimate_block_count(depth_m: np.ndarray, K: np.ndarray, voxel_m: float, block_resolution: int = 8,

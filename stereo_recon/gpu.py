@@ -16,7 +16,7 @@ import logging
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 
 log = logging.getLogger(__name__)
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stereo_recon.disparity import DisparityConfig, depth_from_disparity, disparity_map
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 from stereo_recon.trajectory import rotation_angle_deg
 
 

@@ -89,7 +89,7 @@ class VOConfig:
     graph_rot_weight_m: float = 1.0
 
     def __post_init__(self) -> None:
-        from stereo_recon.errors import ConfigError
+        from stereo_recon.core.errors import ConfigError
 
         positive = ("max_features", "feature_min_distance_px", "lk_window_px", "pnp_reproj_px", "pnp_iterations",
                     "min_inliers", "orb_features", "max_depth_m", "keyframe_rotation_deg", "keyframe_translation_rel")

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,8 @@ def sample_pairs(source, n: int) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """``n`` (name, left, right) frames spread over a stereo source's selection; undecodable ones are skipped."""
     import cv2
 
-    from stereo_recon.video import SideBySideVideo, split_side_by_side
+    from stereo_recon.core.frames import split_side_by_side
+    from stereo_recon.video import SideBySideVideo
 
     idx = list(source.selected_indices())
     if not idx:

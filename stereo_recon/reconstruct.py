@@ -41,11 +41,12 @@ from typing import Callable
 import numpy as np
 
 from stereo_recon.disparity import DisparityConfig, depth_from_disparity, disparity_map, disparity_range_for_depth, preset
-from stereo_recon.errors import ConfigError, StageError
-from stereo_recon.fusion import (FusionConfig, TSDFFusion, consistent_depth_mask, estimate_block_count, voxel_size_from_depth,
-                                 write_cloud_ply)
+from stereo_recon.core.errors import ConfigError, StageError
+from stereo_recon.core.cloud_io import write_cloud as write_cloud_ply
+from stereo_recon.fusion import FusionConfig, TSDFFusion, consistent_depth_mask, estimate_block_count, voxel_size_from_depth
 from stereo_recon.motion_stereo import MotionStereoConfig, motion_depth, partner_ok, rectify_motion_pair
-from stereo_recon.manifest import Stopwatch, run_manifest, staged_output_dir, write_json_atomic
+from stereo_recon.core.atomic import staged_output_dir, write_json_atomic
+from stereo_recon.core.manifest import Stopwatch, run_manifest
 from stereo_recon.trajectory import rotation_angle_deg
 from stereo_recon.video import KeyframeConfig, KeyframeSelector, open_stereo_source, validate_against_rig
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import InputError, StageError
+from stereo_recon.core.errors import InputError, StageError
 from stereo_recon.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,7 @@ class SfMConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        from stereo_recon.errors import ConfigError
+        from stereo_recon.core.errors import ConfigError
 
         if self.matching not in ("auto", "exhaustive", "sequential"):
             raise ConfigError(f"SfMConfig.matching: {self.matching!r} is not auto, exhaustive or sequential")

@@ -1,7 +1,7 @@
 """Camera trajectories: the TUM ``poses.txt`` format, Umeyama alignment, trajectory errors and 'up'.
 
 Poses are world-from-left-camera (``X_world = R_wc @ X_cam + t_wc``), metres, OpenCV camera axes
-(x right, y down, z forward); see :mod:`stereo_recon.conventions`.
+(x right, y down, z forward); see :mod:`stereo_recon.core.conventions`.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import InputError
+from stereo_recon.core.atomic import write_text_atomic
+from stereo_recon.core.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -90,10 +91,7 @@ def write_tum(path, traj: Trajectory) -> Path:
         lines.append(
             f"{ts:.6f} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} {qi[0]:.9f} {qi[1]:.9f} {qi[2]:.9f} {qi[3]:.9f}"
         )
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)
-    return path
+    return write_text_atomic(path, "\n".join(lines) + "\n", encoding=None)
 
 
 def read_tum(path, fps: float | None = None) -> Trajectory:

@@ -18,7 +18,7 @@ from typing import Iterator
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError, InputError
+from stereo_recon.core.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
 

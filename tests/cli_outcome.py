@@ -24,7 +24,7 @@ def no_temp_left(parent: Path) -> None:
 
 def refused(capsys, argv, pattern: str) -> str:
     """Run the CLI; exit 2 with one error line (argparse may add its usage) holding ``pattern``, no traceback."""
-    from stereo_recon.cli import main
+    from stereo_recon.app.cli import main
 
     try:
         rc = main([str(a) for a in argv])

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from measure.cloud_io import write_cloud
+from stereo_recon.core.cloud_io import write_cloud
 from stereo_recon.trajectory import Trajectory, write_tum
 REPO = Path(__file__).resolve().parents[1]
 

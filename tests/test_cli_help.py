@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from measure.schema import read_measurement
-from stereo_recon.cli import build_parser, main
-from stereo_recon.cli_help import HelpFormatter
+from stereo_recon.app.cli import build_parser, main
+from stereo_recon.app.cli_help import HelpFormatter
 
 
 def _subcommands():
@@ -59,7 +59,7 @@ def test_verbosity_before_or_after_the_subcommand():
 
 
 def test_run_takes_the_reconstruction_options():
-    from stereo_recon.pipeline_cli import _reconstruct_overrides
+    from stereo_recon.app.options import reconstruct_overrides as _reconstruct_overrides
 
     args = build_parser().parse_args(["run", "--frames", "5:40", "--step", "2", "--preset", "fast", "--mesh"])
     over = _reconstruct_overrides(args)
@@ -80,7 +80,7 @@ def test_calib_check_exit_1_on_a_calibration_for_another_frame_shape(tmp_path, c
 def test_log_txt_in_the_output_folder_whatever_the_verbosity(tmp_path, capsys):
     import re
 
-    from measure.cloud_io import write_cloud
+    from stereo_recon.core.cloud_io import write_cloud
     from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
 
     pts, _ = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, noise_m=0.002), rng=3)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from measure.schema import read_measurement  # every measurement.json a test writes is checked against its schema
-from stereo_recon.cli import main
+from stereo_recon.app.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_data"

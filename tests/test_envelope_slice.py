@@ -10,7 +10,7 @@ at <= 6 covered with 5 % probability); every full-scale verdict right (``bench.v
 
 import pytest
 
-from stereo_recon.bench import DIMS, bench_random_one, envelope_row
+from stereo_recon.app.bench import DIMS, bench_random_one, envelope_row
 from stereo_recon.synthetic.envelope import draw_spec
 
 SLICE_SEED = 21

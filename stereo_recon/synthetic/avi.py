@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 
 _AVIF_HASINDEX = 0x10
 _AVIIF_KEYFRAME = 0x10

@@ -12,7 +12,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 
 log = logging.getLogger(__name__)
 

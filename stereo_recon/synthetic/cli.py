@@ -49,7 +49,7 @@ _PRESET_ONLY = (("frames", None), ("rectified", False), ("depth", False), ("vide
 
 
 def _run_random(args) -> int:
-    from stereo_recon.errors import ConfigError
+    from stereo_recon.core.errors import ConfigError
     from stereo_recon.synthetic.envelope import render_random
 
     given = [n for n, default in _PRESET_ONLY if getattr(args, n) != default]
@@ -67,7 +67,7 @@ def _run_random(args) -> int:
 
 
 def _run(args) -> int:
-    from stereo_recon.errors import ConfigError
+    from stereo_recon.core.errors import ConfigError
 
     if args.random is not None:
         return _run_random(args)

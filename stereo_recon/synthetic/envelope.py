@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 from stereo_recon.synthetic.camera import LENS_FAMILIES, resolution_size, stereo_rig
 from stereo_recon.synthetic.flight import OrbitConfig, orbit_poses
 from stereo_recon.synthetic.presets import Preset
@@ -511,7 +511,7 @@ def _light_and_ground(scene, s: SceneDraw) -> None:
 
 def render_draw(spec: RandomSceneSpec, out_dir) -> dict:
     """Render one draw into ``out_dir`` (the preset layout; truth.json carries ``random_spec``); returns the truth."""
-    from stereo_recon.manifest import Stopwatch, to_jsonable
+    from stereo_recon.core.manifest import Stopwatch, to_jsonable
     from stereo_recon.synthetic.sequence import write_sequence
 
     sw = Stopwatch()

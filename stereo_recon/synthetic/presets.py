@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 from stereo_recon.synthetic.flight import OrbitConfig
 from stereo_recon.synthetic.scene import TruckSpec
 

@@ -25,8 +25,9 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 from scipy.spatial.transform import Rotation
 
-from stereo_recon.errors import ConfigError
-from stereo_recon.manifest import Stopwatch, run_manifest, staged_output_dir, to_jsonable, write_json_atomic
+from stereo_recon.core.errors import ConfigError
+from stereo_recon.core.atomic import staged_output_dir, write_json_atomic
+from stereo_recon.core.manifest import Stopwatch, run_manifest, to_jsonable
 from stereo_recon.synthetic.camera import SYNTH_SERIAL, zed2_rig
 from stereo_recon.synthetic.flight import PassConfig, look_at, orbit_poses, pass_poses
 from stereo_recon.synthetic.mesh import box, pose

@@ -14,8 +14,8 @@ from calib.boards import DetectConfig
 from calib.io import load_rig
 from calib.rig import StereoRig
 from calib.synthetic_board import look_at_pose, pixel_rays, render_stereo_plane
-from stereo_recon.cli import main
-from stereo_recon.errors import ConfigError
+from stereo_recon.app.cli import main
+from stereo_recon.core.errors import ConfigError
 
 SIZE = (640, 480)
 

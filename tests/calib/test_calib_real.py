@@ -9,7 +9,7 @@ import pytest
 
 from calib.io import load_rig
 from calib.rig import rectify_pair
-from stereo_recon.cli import main
+from stereo_recon.app.cli import main
 
 pytestmark = [pytest.mark.realdata, pytest.mark.slow]
 

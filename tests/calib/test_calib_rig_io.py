@@ -9,7 +9,7 @@ import pytest
 from calib.io import load_rig, parse_calib_arg, save_opencv_stereo, save_rig, write_zed_conf
 from calib.rig import StereoRig, rectify_pair
 from calib.zedconf import read_zed_conf
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 
 def make_rig(size=(1280, 720), **meta) -> StereoRig:

@@ -117,7 +117,7 @@ def test_detects_already_rectified_and_raw_frames(rendered):
 
 @pytest.mark.slow
 def test_calib_check_command_on_side_by_side_image(tmp_path, rendered, capsys):
-    from stereo_recon.cli import main
+    from stereo_recon.app.cli import main
 
     rig, left, right = rendered
     conf = write_zed_conf(rig, tmp_path / "SN5.conf")

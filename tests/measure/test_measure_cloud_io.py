@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from measure.cloud_io import read_cloud, write_cloud
+from measure.cloud_io import read_cloud
+from stereo_recon.core.cloud_io import write_cloud
 from measure.resolution import point_resolution
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".pcd", ".xyz"])

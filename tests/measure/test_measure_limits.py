@@ -15,7 +15,7 @@ from measure.limits import (
     over_limit_verdict,
     regulations_help,
 )
-from stereo_recon.errors import ConfigError, InputError
+from stereo_recon.core.errors import ConfigError, InputError
 
 U0 = {"length": 0.0, "width": 0.0, "height": 0.0}
 

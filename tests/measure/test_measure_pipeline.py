@@ -7,7 +7,7 @@ import pytest
 
 from measure.pipeline import MeasureConfig, config_from_dict, load_config, measure_points
 from measure.synthetic_cloud import FULL_TRUCK, MODEL_TRUCK, SceneSpec, TruckShape, make_truck_scene
-from stereo_recon.errors import ConfigError, InputError, StageError
+from stereo_recon.core.errors import ConfigError, InputError, StageError
 
 DIMS = ("length", "width", "height")
 
@@ -174,7 +174,7 @@ def test_ground_thicker_than_point_spacing_is_still_found():
 
     from measure.pipeline import MeasureConfig, measure_points
     from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
-    from stereo_recon.errors import StageError
+    from stereo_recon.core.errors import StageError
 
     pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.003, tilt_deg=4.0, ground_margin=0.15), rng=5)
     up = truth["up"]

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from measure.cloud_io import write_cloud
+from stereo_recon.core.cloud_io import write_cloud
 from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
-from stereo_recon.cli import main
+from stereo_recon.app.cli import main
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: shared helpers (importlib import mode)
 from cli_outcome import folder_state, no_temp_left, refused  # noqa: E402
@@ -270,7 +270,7 @@ def test_stale_temp_of_a_dead_run_removed_live_one_kept(clouds, tmp_path):
 
 
 def test_commit_interrupted_between_renames_is_restored(tmp_path):
-    from stereo_recon.manifest import remove_stale_temps
+    from stereo_recon.core.atomic import remove_stale_temps
 
     old = tmp_path / f".out.old-{_dead_pid()}-q1"
     old.mkdir()
@@ -281,7 +281,7 @@ def test_commit_interrupted_between_renames_is_restored(tmp_path):
 
 
 def test_failure_inside_transaction_keeps_old_folder(tmp_path):
-    from stereo_recon.manifest import staged_output_dir
+    from stereo_recon.core.atomic import staged_output_dir
 
     out = tmp_path / "out"
     out.mkdir()

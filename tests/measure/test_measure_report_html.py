@@ -139,7 +139,7 @@ def test_render_from_dir_picks_up_measurement_plots_and_run_json(tmp_path):
     import json
 
     from measure.report_html import render_report_from_dir
-    from stereo_recon.errors import InputError
+    from stereo_recon.core.errors import InputError
 
     with pytest.raises(InputError, match="measurement.json"):
         render_report_from_dir(tmp_path)

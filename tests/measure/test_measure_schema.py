@@ -13,7 +13,7 @@ from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
 
 @pytest.fixture(scope="module")
 def record(tmp_path_factory):
-    from measure.cloud_io import write_cloud
+    from stereo_recon.core.cloud_io import write_cloud
     from measure.pipeline import measure_cloud_file
 
     pts, _ = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, noise_m=0.002), rng=5)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereo_recon.cli import main
+from stereo_recon.app.cli import main
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # tests/: shared helpers (importlib import mode)
 from cli_outcome import folder_state, no_temp_left, refused  # noqa: E402
@@ -268,7 +268,7 @@ def test_static_camera_refused_with_cause(tmp_path, capsys, videos):
 def test_sigkill_leaves_temp_that_the_next_run_removes(tmp_path, capsys):
     out = tmp_path / "out"
     env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.Popen([sys.executable, "-m", "stereo_recon.cli", "-q", "reconstruct", str(SAMPLE_VIDEO), "--calib",
+    proc = subprocess.Popen([sys.executable, "-m", "stereo_recon.app.cli", "-q", "reconstruct", str(SAMPLE_VIDEO), "--calib",
                              str(SAMPLE_CONF), "--out", str(out)], env=env, cwd=REPO)
     deadline = time.time() + 120
     temps: list[Path] = []
@@ -281,7 +281,7 @@ def test_sigkill_leaves_temp_that_the_next_run_removes(tmp_path, capsys):
     # The killed run's work is only in its temporary folder; the output folder holds at most its log.txt
     # (opened before the run, it says how far the run got).
     assert temps and temps[0].exists() and (not out.exists() or sorted(os.listdir(out)) == ["log.txt"])
-    from measure.cloud_io import write_cloud
+    from stereo_recon.core.cloud_io import write_cloud
     from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, make_truck_scene
 
     cloud = write_cloud(tmp_path / "truck.ply", make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01), rng=1)[0])

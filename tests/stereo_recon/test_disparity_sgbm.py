@@ -7,15 +7,14 @@ import pytest
 
 from stereo_recon.disparity import (
     DisparityConfig,
-    bad_pixel_rate,
     depth_from_disparity,
     disparity_map,
     disparity_range_for_depth,
     fill_holes_background,
-    load_middlebury_2014,
     preset,
 )
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
+from stereo_recon.evaluation import bad_pixel_rate, load_middlebury_2014
 
 SCENES = ("Adirondack", "Motorcycle", "Piano", "Playtable")
 

@@ -7,7 +7,7 @@ import pytest
 
 o3d = pytest.importorskip("open3d")
 
-from stereo_recon.errors import ConfigError, StageError  # noqa: E402
+from stereo_recon.core.errors import ConfigError, StageError  # noqa: E402
 from stereo_recon.fusion import FusionConfig, TSDFFusion, estimate_block_count, voxel_size_from_depth  # noqa: E402
 from stereo_recon.synthetic.flight import look_at  # noqa: E402
 

@@ -12,7 +12,7 @@ from stereo_recon import gpu
 
 
 def test_cpu_install_never_imports_torch():
-    code = ("import sys, stereo_recon.gpu, stereo_recon.reconstruct, stereo_recon.reconstruct_cli, "
+    code = ("import sys, stereo_recon.gpu, stereo_recon.reconstruct, stereo_recon.app.reconstruct_cli, "
             "stereo_recon.disparity, stereo_recon.fusion, stereo_recon.video; print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

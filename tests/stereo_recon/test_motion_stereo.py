@@ -14,7 +14,7 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 
 from stereo_recon.disparity import preset  # noqa: E402
-from stereo_recon.errors import ConfigError  # noqa: E402
+from stereo_recon.core.errors import ConfigError  # noqa: E402
 from stereo_recon.motion_stereo import MotionStereoConfig, motion_depth, partner_ok, rectify_motion_pair  # noqa: E402
 
 W, H, F = 640, 360, 500.0

@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 CHILD = r"""
 import logging, os, sys
 logging.basicConfig(filename=sys.argv[1], level=logging.DEBUG, format="%(name)s %(message)s")
-from stereo_recon.progress import NativeOutputToLog
+from stereo_recon.core.progress import NativeOutputToLog
 with NativeOutputToLog():
     os.write(2, b"[mjpeg @ 0x55] overread 8\n")      # as FFmpeg writes it, below Python
     os.write(1, b"[Open3D WARNING] something\n")
@@ -49,7 +49,7 @@ def test_native_library_output_goes_to_the_log_on_a_terminal(tmp_path):
 
 
 def test_nothing_is_redirected_off_a_terminal(capfd):
-    from stereo_recon.progress import NativeOutputToLog
+    from stereo_recon.core.progress import NativeOutputToLog
 
     with NativeOutputToLog():   # pytest's captured stderr is not a terminal
         os.write(2, b"native line\n")

@@ -151,7 +151,7 @@ def test_pose_graph_spreads_loop_error(rng):
 
 @pytest.mark.parametrize("kw", [dict(min_inliers=4), dict(max_features=0), dict(min_depth_m=5.0, max_depth_m=1.0)])
 def test_vo_config_rejects_bad_values(kw):
-    from stereo_recon.errors import ConfigError
+    from stereo_recon.core.errors import ConfigError
 
     with pytest.raises(ConfigError):
         VOConfig(**kw)

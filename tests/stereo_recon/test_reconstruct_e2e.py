@@ -14,8 +14,8 @@ cv2 = pytest.importorskip("cv2")
 pytest.importorskip("calib.rig")
 
 from calib.rig import StereoRig  # noqa: E402
-from stereo_recon.cli import main as cli_main  # noqa: E402
-from stereo_recon.errors import InputError, StageError  # noqa: E402
+from stereo_recon.app.cli import main as cli_main  # noqa: E402
+from stereo_recon.core.errors import InputError, StageError  # noqa: E402
 from stereo_recon.reconstruct import ReconstructConfig, reconstruct  # noqa: E402
 from stereo_recon.trajectory import Trajectory, write_tum  # noqa: E402
 from stereo_recon.synthetic.flight import look_at  # noqa: E402

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 from stereo_recon.reconstruct import ReconstructConfig
 
 

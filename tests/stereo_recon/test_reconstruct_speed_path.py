@@ -10,7 +10,7 @@ import pytest
 
 from stereo_recon.odometry import sparse_stereo_depth
 from stereo_recon.reconstruct import PoseViewSelector, ReconstructConfig, _prefetch, subsample_for_fusion
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 from stereo_recon.synthetic.flight import look_at  # noqa: E402
 
 

@@ -139,8 +139,8 @@ def test_far_scene_switches_to_motion_stereo(tmp_path_factory, tmp_path):
     """A full-scale truck (5-8 px of rig disparity), end to end: VO on dense depth, SfM bundle adjustment
     of the fused views, motion stereo, trajectory rescaled, measurement and verdict."""
     from measure.schema import read_measurement
-    from stereo_recon.bench import verdict_matches
-    from stereo_recon.pipeline import RunConfig, run_video
+    from stereo_recon.app.bench import verdict_matches
+    from stereo_recon.app.pipeline import RunConfig, run_video
     from stereo_recon.synthetic.sequence import render_sequence
     from stereo_recon.trajectory import absolute_trajectory_error, align_umeyama
 

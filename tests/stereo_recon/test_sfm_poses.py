@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stereo_recon.errors import InputError, StageError
+from stereo_recon.core.errors import InputError, StageError
 from stereo_recon.sfm import SfMConfig, loop_pairs, sfm_poses
 from stereo_recon.trajectory import Trajectory, align_umeyama
 
@@ -81,7 +81,7 @@ def test_sfm_failure_is_stage_error(tmp_path):
 
 
 def test_sfm_config_rejects_unknown_matching():
-    from stereo_recon.errors import ConfigError
+    from stereo_recon.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="matching"):
         SfMConfig(matching="vocab_tree")

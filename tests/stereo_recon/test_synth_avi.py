@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 from stereo_recon.synthetic.avi import MjpegAviWriter
 
 

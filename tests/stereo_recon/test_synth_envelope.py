@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 from stereo_recon.synthetic import envelope as env
 from stereo_recon.synthetic.scene import truck_mesh
 
@@ -161,7 +161,7 @@ def test_full_scale_truth_carries_the_verdict_expectation():
 
 
 def test_synth_random_cli_writes_reuses_and_refuses(tmp_path, capsys):
-    from stereo_recon.cli import main
+    from stereo_recon.app.cli import main
 
     out = tmp_path / "draws"
     assert main(["synth", "--random", "2", "--seed", "3", "--max-frames", "2", "--resolution", "VGA", "--out", str(out)]) == 0

@@ -133,7 +133,7 @@ def test_table2_presets_carry_the_paper_sizes():
 
 
 def test_cli_synth_and_its_one_line_errors(tmp_path, capsys):
-    from stereo_recon.cli import main
+    from stereo_recon.app.cli import main
 
     out = tmp_path / "cli"
     assert main(["synth", "--preset", "table2:3", "--out", str(out), "--frames", "1", "--resolution", "VGA", "--rectified", "--no-shadows"]) == 0

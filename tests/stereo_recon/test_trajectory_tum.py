@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
 from stereo_recon.trajectory import (
     Trajectory,
     absolute_trajectory_error,

@@ -7,7 +7,7 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from stereo_recon.errors import ConfigError, InputError  # noqa: E402
+from stereo_recon.core.errors import ConfigError, InputError  # noqa: E402
 from stereo_recon.video import (  # noqa: E402
     KeyframeConfig,
     KeyframeSelector,

@@ -9,9 +9,11 @@ import os
 import sys
 from pathlib import Path
 
-from measure.cli import add_case_options, case_fields
-from stereo_recon.errors import ConfigError, InputError
-from stereo_recon.progress import ProgressConfig, StageProgress
+from stereo_recon.app.measure_cli import add_case_options, case_fields
+from stereo_recon.app.options import add_frame_options, add_pose_options, reconstruct_config
+from stereo_recon.core.errors import ConfigError, InputError
+from stereo_recon.core.paths import SUMMARY_CSV, RunPaths
+from stereo_recon.core.progress import ProgressConfig, StageProgress
 
 
 def _add_job_options(p: argparse.ArgumentParser) -> None:
@@ -21,15 +23,8 @@ def _add_job_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scale", type=float, default=None, help="model-to-real scale factor (model trucks get a legal verdict only with it)")
     p.add_argument("--config", type=Path, default=None, help="TOML/YAML file with measure parameter overrides")
     p.add_argument("--rectified", action="store_true", default=None, help="frames are already rectified (ZED SDK SVO export)")
-    p.add_argument("--motion-stereo", action="store_true",
-                   help="wide-baseline depth from pairs of frames also on near scenes (far scenes get it anyway; vo poses)")
-    p.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
-                   help="bundle-adjust the fused views' VO poses with pycolmap SfM (auto: far scenes only; vo poses)")
-    p.add_argument("--frames", default=None, metavar="A:B", help="half-open frame range of the video to use, e.g. 100:400 (default: all)")
-    p.add_argument("--step", type=int, default=1, help="use every N-th frame")
-    p.add_argument("--preset", default="balanced", choices=("fast", "balanced", "quality", "wls"),
-                   help="disparity (SGBM) preset")
-    p.add_argument("--mesh", action="store_true", help="also write mesh.ply (marching cubes of the TSDF volume)")
+    add_pose_options(p)
+    add_frame_options(p)
     add_case_options(p)
     p.add_argument("--reconstruction-sigma-pct", default=None, metavar="L,W,H",
                    help="relative standard error of the reconstruction per dimension (%%), added to the measurement's "
@@ -62,7 +57,7 @@ def _add_ray_options(p: argparse.ArgumentParser) -> None:
 
 
 def _ray_options(args):
-    from stereo_recon.batch_ray import RayOptions
+    from stereo_recon.app.batch_ray import RayOptions
 
     if args.address and args.executor != "ray":
         raise ConfigError(f"--address {args.address}: a Ray cluster is used only with --executor ray")
@@ -120,9 +115,7 @@ def register(sub) -> None:
                    help="local process pool, or a Ray cluster (pip install .[ray])")
     _add_ray_options(c)
     c.add_argument("--no-full-scale", action="store_true", help="skip the full-scale presets (full-truck, over-height)")
-    c.add_argument("--motion-stereo", action="store_true", help="motion stereo on every truck, not only far scenes (vo poses)")
-    c.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
-                   help="SfM bundle adjustment of VO's fused views (auto: far scenes only)")
+    add_pose_options(c)
     c.add_argument("--study", choices=("ground-thickness", "fof-eps"), default=None,
                    help="re-measure the reconstructed training trucks (1-6) over the paper's sweep")
     _add_random_bench_options(c)
@@ -150,9 +143,10 @@ def _add_random_bench_options(c: argparse.ArgumentParser) -> None:
 
 
 def _job_config(args, resume: bool):
-    from stereo_recon.pipeline import RunConfig
-
-    from stereo_recon.validate import check_number
+    """The job's RunConfig, built once per command: its ReconstructConfig and MeasureConfig validated here."""
+    from measure.pipeline import MeasureConfig, load_config
+    from stereo_recon.app.pipeline import RunConfig
+    from stereo_recon.core.validate import check_number
 
     check_number("--scale", args.scale)
     if getattr(args, "workers", None) is not None:
@@ -160,9 +154,8 @@ def _job_config(args, resume: bool):
     extra = {}
     if getattr(args, "reconstruction_sigma_pct", None) is not None:
         extra["reconstruction_rel_sigma"] = _parse_sigma_pct(args.reconstruction_sigma_pct)
-    return RunConfig(poses=args.poses, regulation=args.regulation, vehicle_class=args.vehicle_class, scale=args.scale,
-                     resume=resume, rectified=args.rectified, measure_config=args.config,
-                     reconstruct_overrides=_reconstruct_overrides(args),
+    return RunConfig(reconstruct=reconstruct_config(args), measure=load_config(args.config) if args.config else MeasureConfig(),
+                     regulation=args.regulation, vehicle_class=args.vehicle_class, scale=args.scale, resume=resume,
                      quiet=bool(getattr(args, "quiet", False)), case=case_fields(args), **extra)
 
 
@@ -175,42 +168,6 @@ def _parse_sigma_pct(text: str) -> dict:
     if len(vals) != 3 or not all(math.isfinite(v) and v >= 0 for v in vals):
         raise ConfigError(f"--reconstruction-sigma-pct {text!r}: expected three percentages >= 0, e.g. 0.3,1.4,0.5")
     return dict(zip(("length", "width", "height"), (v / 100.0 for v in vals)))
-
-
-def _reconstruct_overrides(args) -> dict:
-    """Reconstruct overrides for ``--motion-stereo`` and ``--refine-poses``, checked now (ReconstructConfig's
-    rules), not per job."""
-    from stereo_recon.reconstruct import ReconstructConfig
-    from stereo_recon.reconstruct_cli import REFINE_POSES_CHOICES
-
-    overrides: dict = {}
-    if getattr(args, "motion_stereo", False):
-        from stereo_recon.motion_stereo import MotionStereoConfig
-
-        overrides["motion_stereo"] = MotionStereoConfig()
-    refine = REFINE_POSES_CHOICES[getattr(args, "refine_poses", "auto")]
-    if refine is not None:
-        overrides["refine_poses_sfm"] = refine
-    overrides.update(_frame_overrides(args))
-    if overrides:
-        ReconstructConfig(poses=args.poses, **overrides)  # raises ConfigError for --poses sfm
-    return overrides
-
-
-def _frame_overrides(args) -> dict:
-    """Reconstruct overrides for ``--frames``, ``--step``, ``--preset`` and ``--mesh`` (as ``reconstruct`` takes them)."""
-    from stereo_recon.video import parse_frame_range
-
-    overrides: dict = {}
-    if getattr(args, "frames", None) is not None and isinstance(args.frames, str):
-        overrides["frame_range"] = parse_frame_range(args.frames)
-    if getattr(args, "step", 1) != 1:
-        overrides["step"] = args.step
-    if getattr(args, "preset", "balanced") != "balanced":
-        overrides["disparity_preset"] = args.preset
-    if getattr(args, "mesh", False):
-        overrides["mesh"] = True
-    return overrides
 
 
 def _print_summary(s: dict) -> None:
@@ -227,14 +184,14 @@ def _print_summary(s: dict) -> None:
         reg = v.get("regulation", "?")
         reg = reg.get("name", "?") if isinstance(reg, dict) else reg
         print(f"verdict ({reg}): {v.get('overall', '?')}" + (f" — {v['reason']}" if v.get("reason") else ""))
-    from measure.cli import data_quality_line
+    from stereo_recon.app.measure_cli import data_quality_line
 
     print(data_quality_line(s.get("data_quality")))
-    print(f"report: {Path(s['out_dir']) / 'report.html'}")
+    print(f"report: {RunPaths(Path(s['out_dir'])).report}")
 
 
 def _cmd_run(args) -> int:
-    from stereo_recon.pipeline import find_sample, run_video
+    from stereo_recon.app.pipeline import find_sample, run_video
 
     if args.video is None:
         video, calib = find_sample()
@@ -251,7 +208,7 @@ def _cmd_run(args) -> int:
 
 
 def _run_one(video: str, calib: str, out_dir: str, cfg) -> dict:
-    from stereo_recon.pipeline import run_video
+    from stereo_recon.app.pipeline import run_video
 
     return run_video(video, calib, out_dir, cfg)
 
@@ -260,9 +217,9 @@ def _cmd_batch(args) -> int:
     import time
     from dataclasses import replace
 
-    from stereo_recon.batch import run_jobs, write_summary_csv
-    from stereo_recon.pipeline import validate_job
-    from stereo_recon.validate import check_output_dir
+    from stereo_recon.app.batch import run_jobs, write_summary_csv
+    from stereo_recon.app.pipeline import validate_job
+    from stereo_recon.core.validate import check_output_dir
 
     t0 = time.perf_counter()
     cfg = replace(_job_config(args, args.resume), quiet=True)  # parallel jobs: no per-job progress lines
@@ -290,7 +247,7 @@ def _cmd_batch(args) -> int:
         bar("batch", 0, len(jobs))
         results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress,
                            ray_options=_ray_options(args))
-    csv_path = write_summary_csv(args.out / "summary.csv", results, merge=args.resume)
+    csv_path = write_summary_csv(args.out / SUMMARY_CSV, results, merge=args.resume)
     n_ok = sum(r["ok"] for r in results)
     failed = [r["name"] for r in results if not r["ok"]]
     print(f"{n_ok}/{len(results)} recordings measured in {time.perf_counter() - t0:.1f} s; summary: {csv_path}"
@@ -300,11 +257,11 @@ def _cmd_batch(args) -> int:
 
 def _batch_jobs(args, cfg) -> list:
     """One job per video: OUT/<stem>/ (OUT/<stem>-<i>/ when stems repeat); every file it reads is declared."""
-    from stereo_recon.batch import Job
+    from stereo_recon.app.jobs import Job
 
     names = [v.stem for v in args.videos]
     dupes = {n for n in names if names.count(n) > 1}
-    files = [str(p) for p in (args.calib, cfg.measure_config, cfg.regulation) if p is not None and Path(p).is_file()]
+    files = [str(p) for p in (args.calib, cfg.regulation) if p is not None and Path(p).is_file()]
     jobs = []
     for i, v in enumerate(args.videos):
         name = f"{v.stem}-{i}" if v.stem in dupes else v.stem
@@ -315,8 +272,9 @@ def _batch_jobs(args, cfg) -> list:
 
 
 def _cmd_bench_random(args) -> int:
-    from stereo_recon.batch import Job, run_jobs
-    from stereo_recon.bench import bench_random_one, envelope_row, write_envelope
+    from stereo_recon.app.batch import run_jobs
+    from stereo_recon.app.jobs import Job
+    from stereo_recon.app.bench import bench_random_one, envelope_row, write_envelope
     from stereo_recon.synthetic.envelope import draw_spec
 
     if args.random < 1:
@@ -339,7 +297,8 @@ def _cmd_bench_random(args) -> int:
         else:
             print(f"[{r['name']}] FAILED: {row['failure_reason']}", file=sys.stderr)
 
-    results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress)
+    results = run_jobs(jobs, workers=args.workers, executor=args.executor, progress=progress,
+                       ray_options=_ray_options(args))
     ordered = [envelope_row(r, s) for r, s in zip(results, specs)]
     meta = {"seed": args.seed, "count": args.random, "max_frames": args.max_frames, "scale": args.scale_only, "resolution": args.resolution,
             "draws_dir": str(draws)}
@@ -355,10 +314,11 @@ def _cmd_bench_random(args) -> int:
 
 
 def _cmd_bench(args) -> int:
-    from stereo_recon.batch import Job, run_jobs
-    from stereo_recon.bench import bench_one, bench_summary, parse_truck_range, run_study, table_markdown, verdict_matches, write_bench
+    from stereo_recon.app.batch import run_jobs
+    from stereo_recon.app.jobs import Job
+    from stereo_recon.app.bench import bench_one, bench_summary, parse_truck_range, run_study, table_markdown, verdict_matches, write_bench
 
-    from stereo_recon.validate import check_number, check_output_dir
+    from stereo_recon.core.validate import check_number, check_output_dir
 
     check_number("--workers", args.workers, integer=True, minimum=1, strict=False)
     check_number("--frames", args.frames, integer=True, minimum=3, strict=False)
@@ -368,13 +328,13 @@ def _cmd_bench(args) -> int:
     trucks = parse_truck_range(args.trucks)
     if args.study:
         trucks = [t for t in trucks if t <= 6] or [1, 2, 3, 4, 5, 6]  # the paper's six training trucks
-    overrides = _reconstruct_overrides(args)
+    rcfg = reconstruct_config(args)
     jobs = [Job(f"table2:{n}", bench_one, (f"table2:{n}", str(out / "scenes" / f"table2-{n}"), str(out / "runs" / f"table2-{n}"),
-                                          args.seed + n, args.frames, args.poses, overrides),
+                                          args.seed + n, args.frames, rcfg),
                 outputs=(str(out / "scenes" / f"table2-{n}"), str(out / "runs" / f"table2-{n}"))) for n in trucks]
     full = [] if (args.no_full_scale or args.study) else ["full-truck", "over-height"]
-    jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, args.poses,
-                                overrides), outputs=(str(out / "scenes" / p), str(out / "runs" / p))) for p in full]
+    jobs += [Job(p, bench_one, (p, str(out / "scenes" / p), str(out / "runs" / p), args.seed, args.frames, rcfg),
+                 outputs=(str(out / "scenes" / p), str(out / "runs" / p))) for p in full]
 
     bar = StageProgress(("bench",), config=ProgressConfig(enabled=not getattr(args, "quiet", False)))
     finished = 0
@@ -415,11 +375,11 @@ def _cmd_bench(args) -> int:
         clouds = []
         for r in model:
             if r["ok"]:
-                clouds.append((r["name"], Path(r["out_dir"]) / "cloud.ply", {f"{d}_m": r["truth"][d] for d in ("length", "width", "height")}))
+                clouds.append((r["name"], RunPaths(Path(r["out_dir"])).cloud, {f"{d}_m": r["truth"][d] for d in ("length", "width", "height")}))
         ups = {}
         for r in model:
             if r["ok"]:
-                meta = json.loads((Path(r["out_dir"]) / "run.json").read_text())
+                meta = json.loads(RunPaths(Path(r["out_dir"])).run_json.read_text())
                 ups[r["name"]] = meta.get("up")
         res = run_study(args.study, clouds, out, up_hints=ups)
         d = res["default"]

@@ -11,9 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from stereo_recon.batch import SUMMARY_COLUMNS, Job, run_jobs, substitute_paths, write_summary_csv
-from stereo_recon.batch_ray import _input_state, land, run_on_node
-from stereo_recon.errors import ConfigError
+from stereo_recon.app.batch import SUMMARY_COLUMNS, run_jobs, write_summary_csv
+from stereo_recon.app.jobs import Job, substitute_paths
+from stereo_recon.app.batch_ray import _input_state, land, run_on_node
+from stereo_recon.core.errors import ConfigError
 
 # json.loads is a picklable, module-level function that returns a dict or raises: a stand-in for run_video.
 GOOD = [Job(f"rec{i}", json.loads, (json.dumps({"length_m": 10.0 + i, "width_m": 2.5, "height_m": 3.9}),)) for i in range(3)]
@@ -112,7 +113,7 @@ def test_job_folder_travels_back_to_the_driver(tmp_path):
     assert run_on_node(job, lacking, "auto", ()) == {"missing": [str(video)]}
     assert "not on node" in run_on_node(job, lacking, "never", ())["result"]["error"]
 
-    from stereo_recon.batch_ray import _pack
+    from stereo_recon.app.batch_ray import _pack
 
     reply = run_on_node(job, states, "auto", (str(video),), _pack(str(video)))  # shipped: runs on its own copy
     assert reply["result"]["ok"] and reply["result"]["video"] != str(video)
@@ -128,26 +129,26 @@ def test_job_folder_travels_back_to_the_driver(tmp_path):
 
 
 def test_ray_error_with_a_remote_traceback_is_one_line():
-    from stereo_recon.batch_ray import _ray_error_line
+    from stereo_recon.app.batch_ray import _ray_error_line
 
     # The text Ray 2.60 raised on a node whose stereo-recon lacked the module (seen on a loopback cluster).
     cause = RuntimeError(
         "The remote function failed to import on the worker. This may be because needed library dependencies are "
         "not installed in the worker environment or cannot be found from sys.path ['/tmp/x']:\n\n"
         "Traceback (most recent call last):\n  File \"/ray/_private/function_manager.py\", line 314, in fetch\n"
-        "    function = pickle.loads(serialized_function)\nModuleNotFoundError: No module named 'stereo_recon.batch_ray'\n")
+        "    function = pickle.loads(serialized_function)\nModuleNotFoundError: No module named 'stereo_recon.app.batch_ray'\n")
     err = Exception("RayTaskError")
     err.cause = cause
     line = _ray_error_line(err)
     assert "\n" not in line and "Traceback" not in line and "sys.path" not in line
-    assert line.startswith("ModuleNotFoundError: No module named 'stereo_recon.batch_ray'")
+    assert line.startswith("ModuleNotFoundError: No module named 'stereo_recon.app.batch_ray'")
     assert "installed on every node" in line
 
 
 def test_batch_help_has_description_example_and_every_default(capsys):
     import re
 
-    from stereo_recon.cli import main
+    from stereo_recon.app.cli import main
 
     with pytest.raises(SystemExit) as exit_:
         main(["batch", "--help"])
@@ -169,7 +170,7 @@ def test_scratch_of_a_killed_worker_is_removed_by_the_next_job(tmp_path, monkeyp
     import sys
     import tempfile
 
-    from stereo_recon.batch_ray import _scratch_dir
+    from stereo_recon.app.batch_ray import _scratch_dir
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
@@ -183,7 +184,7 @@ def test_scratch_of_a_killed_worker_is_removed_by_the_next_job(tmp_path, monkeyp
 
 
 def test_address_without_ray_executor_is_one_line_error(tmp_path, capsys):
-    from stereo_recon.cli import main
+    from stereo_recon.app.cli import main
 
     rc = main(["batch", str(tmp_path / "v.avi"), "--calib", "1,1,1,1,0.1", "--out", str(tmp_path / "o"), "--address", "auto"])
     err = capsys.readouterr().err.strip()
@@ -194,7 +195,7 @@ def test_address_without_ray_executor_is_one_line_error(tmp_path, capsys):
 def test_ray_options_are_checked_before_anything_runs(monkeypatch):
     import sys
 
-    from stereo_recon.batch_ray import RayOptions
+    from stereo_recon.app.batch_ray import RayOptions
 
     with pytest.raises(ConfigError, match="--cpus-per-job"):
         run_jobs(GOOD, executor="ray", ray_options=RayOptions(cpus_per_job=0))

@@ -6,6 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from stereo_recon.app.options import REFINE_POSES_CHOICES, add_frame_options, add_pose_options
+from stereo_recon.core.paths import POSES, RUN_JSON, RunPaths
+
 
 def register(subparsers) -> None:
     """Add the ``reconstruct`` subcommand."""
@@ -23,18 +26,13 @@ def register(subparsers) -> None:
     p.add_argument("--poses", default="vo", metavar="{vo,sfm,gt:PATH}",
                    help="pose back-end: vo (stereo visual odometry, default), sfm (pycolmap), or gt:PATH to fuse with a "
                         "known TUM trajectory (world-from-left-camera, timestamp = frame index / fps)")
-    p.add_argument("--frames", default=None, metavar="A:B", help="half-open frame range, e.g. 100:400")
-    p.add_argument("--step", type=int, default=1, help="use every N-th frame (default 1)")
     p.add_argument("--fps", type=float, default=None, help="override the video's frame rate (timestamps)")
     p.add_argument("--voxel-m", type=float, default=None, help="TSDF voxel size in m (default: from the scene's depth)")
     p.add_argument("--depth-min-m", type=float, default=0.3, help="nearest depth used, m (default 0.3, ZED2)")
     p.add_argument("--depth-max-m", type=float, default=None,
                    help="farthest depth used, m (default: where the rig's disparity falls to 1 px, 63 m for a ZED2 at HD720)")
-    p.add_argument("--preset", default="balanced", choices=("fast", "balanced", "quality", "wls"),
-                   help="disparity preset (default balanced)")
     p.add_argument("--all-frames", action="store_true",
                    help="fuse every processed frame instead of motion-selected keyframes")
-    p.add_argument("--mesh", action="store_true", help="also write mesh.ply (marching cubes)")
     p.add_argument("--rectified", action="store_true",
                    help="frames are already rectified (ZED SDK exports): skip rectification")
     p.add_argument("--gpu", action="store_true", help="rectify on a CUDA GPU with torch/kornia (pip install .[gpu])")
@@ -42,24 +40,17 @@ def register(subparsers) -> None:
     p.add_argument("--export-colmap", default=None, metavar="DIR",
                    help="also write the fused views as a COLMAP model: DIR/sparse/0 (cameras, images with poses) and "
                         "DIR/images (their left frames)")
-    p.add_argument("--motion-stereo", action="store_true",
-                   help="match each fused view with a later frame ~0.11 x the depth away (a wide baseline) and fuse "
-                        "that depth, also on near scenes (far scenes get it anyway); vo or gt poses only")
-    p.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
-                   help="bundle-adjust the fused views' VO poses with pycolmap SfM (auto: far scenes only; vo poses)")
+    add_frame_options(p)
+    add_pose_options(p)
     p.set_defaults(func=run)
-
-
-# --refine-poses -> ReconstructConfig.refine_poses_sfm
-REFINE_POSES_CHOICES = {"auto": None, "on": True, "off": False}
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler: build the config, run ``reconstruct``, print a summary."""
     from calib.io import parse_calib_arg
-    from stereo_recon.errors import ConfigError
+    from stereo_recon.core.errors import ConfigError
     from stereo_recon.motion_stereo import MotionStereoConfig
-    from stereo_recon.progress import ProgressConfig, StageProgress
+    from stereo_recon.core.progress import ProgressConfig, StageProgress
     from stereo_recon.reconstruct import ReconstructConfig, reconstruct
     from stereo_recon.video import open_stereo_source, parse_frame_range
 
@@ -68,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
         if not gpu.cuda_available():
             raise ConfigError("--gpu: torch with a CUDA device is not available (install the [gpu] extra)")
-    from stereo_recon.validate import check_number, check_output_dir
+    from stereo_recon.core.validate import check_number, check_output_dir
 
     # Options and the output folder are checked before the video is opened.
     check_number("--fps", args.fps)
@@ -114,5 +105,5 @@ def run(args: argparse.Namespace) -> int:
               f"up = [{', '.join(f'{v:.3f}' for v in man['up'])}]")
         stages = ", ".join(f"{k} {v:.1f}s" for k, v in t.items())
         print(f"  times: {stages}")
-        print(f"  wrote {Path(args.out) / 'cloud.ply'}, poses.txt, run.json")
+        print(f"  wrote {RunPaths(Path(args.out)).cloud}, {POSES}, {RUN_JSON}")
     return 0

@@ -7,11 +7,9 @@ import os
 import tempfile
 from pathlib import Path
 
-from stereo_recon.errors import ConfigError, InputError
+from stereo_recon.core.errors import ConfigError, InputError
+from stereo_recon.core.paths import LOG, OUTPUT_MARKERS
 
-# Files that mark a folder as one of this program's outputs (an existing folder without any of them
-# and with other content is not replaced: it is probably the user's own).
-OUTPUT_MARKERS = ("run.json", "job.json", "measurement.json", "cloud.ply", "report.html", "poses.txt")
 
 
 def check_number(option: str, value, *, minimum: float = 0.0, strict: bool = True, integer: bool = False,
@@ -71,7 +69,7 @@ def check_output_dir(path, option: str = "--out", foreign_ok: bool = False) -> P
     if final.is_dir():
         try:
             # log.txt is the command's own log, opened in the folder before the checks run
-            entries = [e.name for e in os.scandir(final) if e.name != "log.txt"]
+            entries = [e.name for e in os.scandir(final) if e.name != LOG]
         except OSError as err:
             raise InputError(f"{what}: cannot read the folder ({err.strerror or err})") from None
         if entries and not foreign_ok and not any(m in entries for m in OUTPUT_MARKERS):

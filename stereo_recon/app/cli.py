@@ -14,15 +14,16 @@ import sys
 from pathlib import Path
 
 from stereo_recon import __version__
-from stereo_recon.cli_help import finish_help
-from stereo_recon.errors import StereoReconError
-from stereo_recon.progress import NativeOutputToLog, stream_is_tty, abandon_open, quiet_native_libraries, quiet_open3d
+from stereo_recon.app.cli_help import finish_help
+from stereo_recon.core.errors import StereoReconError
+from stereo_recon.core.paths import LOG
+from stereo_recon.core.progress import NativeOutputToLog, stream_is_tty, abandon_open, quiet_native_libraries, quiet_open3d
 
 # Modules that contribute subcommands, in the order they appear in --help.
 COMMAND_MODULES = (
-    "stereo_recon.pipeline_cli",   # run, bench, batch
-    "stereo_recon.reconstruct_cli",  # reconstruct
-    "measure.cli",                 # measure
+    "stereo_recon.app.pipeline_cli",   # run, bench, batch
+    "stereo_recon.app.reconstruct_cli",  # reconstruct
+    "stereo_recon.app.measure_cli",                 # measure
     "calib.cli",                   # calibrate, calib-check
     "stereo_recon.synthetic.cli",  # synth
 )
@@ -67,7 +68,7 @@ _NOISY_LOGGERS = ("matplotlib", "PIL", "fontTools", "numba", "ray")
 
 def _configure_logging(verbose: int, quiet: bool) -> None:
     """Terminal: WARNING (-v INFO, -vv DEBUG, -q ERROR), timestamped, written above any progress bar."""
-    from stereo_recon.progress import TqdmLogHandler
+    from stereo_recon.core.progress import TqdmLogHandler
 
     level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     root = logging.getLogger()
@@ -98,11 +99,11 @@ def _open_log_file(args, argv: list[str] | None) -> tuple[logging.Handler | None
     if folder.suffix.lower() in _FILE_OUTPUTS:
         return None, None, False  # a file, not an output folder: no log beside it in someone's folder
     created = not folder.exists()
-    log_path = folder / "log.txt"
+    log_path = folder / LOG
     log_size = log_path.stat().st_size if log_path.is_file() else None
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        handler = logging.FileHandler(folder / "log.txt", mode="a", encoding="utf-8")
+        handler = logging.FileHandler(folder / LOG, mode="a", encoding="utf-8")
     except OSError:
         return None, None, False  # the command itself reports an unusable --out
     handler.setLevel(logging.DEBUG)
@@ -111,7 +112,7 @@ def _open_log_file(args, argv: list[str] | None) -> tuple[logging.Handler | None
     handler._stereo_recon = True  # type: ignore[attr-defined]
     logging.getLogger().addHandler(handler)
     cmd = " ".join(sys.argv[:1] + list(sys.argv[1:] if argv is None else argv))
-    logging.getLogger("stereo_recon.cli").debug("stereo-recon %s: %s (cwd %s)", __version__, cmd, Path.cwd())
+    logging.getLogger("stereo_recon.app.cli").debug("stereo-recon %s: %s (cwd %s)", __version__, cmd, Path.cwd())
     handler._folder_before = (_folder_state(folder), log_size)  # type: ignore[attr-defined]
     return handler, folder, created
 
@@ -119,7 +120,7 @@ def _open_log_file(args, argv: list[str] | None) -> tuple[logging.Handler | None
 def _folder_state(folder: Path) -> dict:
     """Names and (size, mtime) of a folder's entries other than log.txt: what a refused command must leave as it was."""
     try:
-        return {e.name: (st.st_size, st.st_mtime_ns) for e in os.scandir(folder) if e.name != "log.txt"
+        return {e.name: (st.st_size, st.st_mtime_ns) for e in os.scandir(folder) if e.name != LOG
                 for st in (e.stat(),)}
     except OSError:
         return {}
@@ -136,7 +137,7 @@ def _close_log_file(handler, folder: Path | None, created: bool, code: int, refu
     or failed stage is removed (a failure leaves no output folder behind; the error line says what went wrong)."""
     if handler is None:
         return
-    logging.getLogger("stereo_recon.cli").debug("exit code %d", code)
+    logging.getLogger("stereo_recon.app.cli").debug("exit code %d", code)
     logging.getLogger().removeHandler(handler)
     handler.close()
     if not refused or folder is None:
@@ -145,7 +146,7 @@ def _close_log_file(handler, folder: Path | None, created: bool, code: int, refu
     if _folder_state(folder) != before:
         return  # the command changed the folder (e.g. a kept reconstruction): its log stays with it
     # A refused command leaves the folder exactly as it was: its log lines go too.
-    log_path = folder / "log.txt"
+    log_path = folder / LOG
     if log_size is None:
         log_path.unlink(missing_ok=True)
     else:
@@ -184,7 +185,7 @@ def _run_command(args, argv: list[str] | None) -> int:
         refused = True
         abandon_open()
         msg = " ".join(str(err).split())  # one line, always
-        logging.getLogger("stereo_recon.cli").debug("error", exc_info=True)
+        logging.getLogger("stereo_recon.app.cli").debug("error", exc_info=True)
         print(f"stereo-recon {args.command}: error: {msg}", file=sys.stderr)
         code = err.exit_code
     except KeyboardInterrupt:
@@ -193,7 +194,7 @@ def _run_command(args, argv: list[str] | None) -> int:
         code = 130
     except BaseException:
         abandon_open()
-        logging.getLogger("stereo_recon.cli").exception("unexpected failure")
+        logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")
         raise
     finally:
         _close_log_file(handler, folder, created, code, refused)

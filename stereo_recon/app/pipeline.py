@@ -10,51 +10,24 @@ import json
 import logging
 import os
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from stereo_recon.errors import InputError, StageError, StereoReconError
-from stereo_recon.manifest import sha256_file, staged_output_dir, to_jsonable, write_json_atomic
-from stereo_recon.progress import ProgressConfig, StageProgress
-from stereo_recon.uncertainty import depth_sigma_m
+from measure.pipeline import MeasureConfig
+from stereo_recon.core.errors import InputError, StageError, StereoReconError
+from stereo_recon.core.atomic import staged_output_dir, write_json_atomic
+from stereo_recon.core.manifest import sha256_file, to_jsonable
+from stereo_recon.core.paths import CLOUD, POSES, RECONSTRUCTION_FILES, RUN_JSON, RUN_OUTPUTS, RunPaths
+from stereo_recon.core.progress import ProgressConfig, StageProgress
+from stereo_recon.app.uncertainty import depth_sigma_m
+from stereo_recon.reconstruct import ReconstructConfig
 
 log = logging.getLogger(__name__)
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_DIR = REPO_ROOT / "sample_data"
-
-
-@dataclass(frozen=True)
-class RunPaths:
-    """Every path of one run's output folder (documented in the README)."""
-
-    root: Path
-
-    @property
-    def cloud(self) -> Path:  # fused point cloud, world frame of the first left camera
-        return self.root / "cloud.ply"
-
-    @property
-    def poses(self) -> Path:  # TUM, world-from-left-camera
-        return self.root / "poses.txt"
-
-    @property
-    def run_json(self) -> Path:  # reconstruction manifest (inputs, parameters, timings, 'up')
-        return self.root / "run.json"
-
-    @property
-    def measurement(self) -> Path:  # measure stage result
-        return self.root / "measurement.json"
-
-    @property
-    def report(self) -> Path:  # self-contained HTML report
-        return self.root / "report.html"
-
-    @property
-    def summary(self) -> Path:  # this job's own manifest: stages, times, verdict
-        return self.root / "job.json"
 
 
 # The pipeline's own error as `stereo-recon bench` measured it (VO poses; rms of the signed relative
@@ -69,20 +42,18 @@ RECONSTRUCTION_REL_SIGMA = {"length": 0.0032, "width": 0.0144, "height": 0.0051}
 
 @dataclass(frozen=True)
 class RunConfig:
-    """Settings of the end-to-end job; reconstruction/measure details live in their own configs."""
+    """Settings of the end-to-end job, composed of the stages' own validated configs (built once, by the caller)."""
 
-    poses: str = "vo"                    # 'vo' (stereo visual odometry) or 'sfm' (pycolmap)
+    reconstruct: ReconstructConfig = field(default_factory=ReconstructConfig)   # poses, frames, preset, ...
+    measure: MeasureConfig = field(default_factory=MeasureConfig)               # e.g. from --config (load_config)
     regulation: str = "cn-2016-62"       # builtin regulation name or path to a table
     vehicle_class: str | None = None     # class in the regulation table; None = its default
     scale: float | None = None           # model-to-real factor for model trucks (None: no legal verdict at model scale)
     resume: bool = False                 # reuse finished stages whose inputs are unchanged
-    rectified: bool | None = None        # force frames as already rectified (None: from the calibration)
-    measure_config: Path | None = None   # TOML/YAML with MeasureConfig overrides
-    reconstruct_overrides: dict = field(default_factory=dict)
     # Relative standard error of the reconstructed cloud per dimension, added in quadrature to the
     # measurement's own uncertainty before the verdict (None or zeros: the cloud is taken as exact).
     reconstruction_rel_sigma: dict | None = field(default_factory=lambda: dict(RECONSTRUCTION_REL_SIGMA))
-    # Add the depth geometry's share of the reconstruction's error (stereo_recon.uncertainty: k_px x Z^2/(f B)
+    # Add the depth geometry's share of the reconstruction's error (stereo_recon.app.uncertainty: k_px x Z^2/(f B)
     # for the baseline that made the depth), calibrated on tuning scenes; False: the relative floor only.
     depth_uncertainty: bool = True
     quiet: bool = False                  # no progress line on the terminal
@@ -98,29 +69,19 @@ def find_sample() -> tuple[Path, Path]:
     return videos[0], calibs[0]
 
 
-# Files of a run's folder that belong to the run: a new run replaces them all (an earlier run's
-# mesh.ply or plots never sit beside a new cloud); anything else in the folder is kept.
-RUN_OUTPUTS = frozenset({"cloud.ply", "poses.txt", "run.json", "mesh.ply", "work", "measurement.json", "report.html",
-                         "job.json", "measure_run.json", "width_density.png", "length_density.png", "top_view.png", "side_view.png",
-                         "keyframe.jpg"})
-# The reconstruction's files, reused by --resume when every input that made them is unchanged.
-RECONSTRUCTION_FILES = ("cloud.ply", "poses.txt", "run.json", "mesh.ply")
-
-
 def validate_job(config: RunConfig):
-    """Check the job's settings before any work: scale, regulation table and vehicle class, measure config.
+    """Check the job's settings before any work: scale, regulation table and vehicle class.
 
-    Returns (regulation, MeasureConfig). Raises ConfigError naming the file/key and the fault.
+    Returns the regulation. Raises ConfigError naming the file/key and the fault. The stage configs
+    (``config.reconstruct``, ``config.measure``) validate themselves when they are built.
     """
     from measure.limits import load_regulation
-    from measure.pipeline import MeasureConfig, load_config
-    from stereo_recon.validate import check_number
+    from stereo_recon.core.validate import check_number
 
     check_number("--scale", config.scale)
     reg = load_regulation(config.regulation)
     reg.limits(config.vehicle_class)
-    mcfg = load_config(config.measure_config) if config.measure_config else MeasureConfig()
-    return reg, mcfg
+    return reg
 
 
 def _sha256_source(path: Path) -> str:
@@ -181,7 +142,7 @@ def reuse_problem(paths: RunPaths, fingerprint: dict) -> str | None:
                                                                                       fingerprint["reconstruct"])))
     if old.get("version") != fingerprint["version"]:
         why.append(f"the program version changed ({old.get('version')} -> {fingerprint['version']})")
-    for name in ("cloud.ply", "poses.txt", "run.json"):
+    for name in (CLOUD, POSES, RUN_JSON):
         if name not in outputs:
             why.append(f"{name} was not recorded")
     for name, rec in outputs.items():
@@ -215,26 +176,22 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     Returns the job summary dict (also written to ``job.json``).
     """
     from calib.io import parse_calib_arg  # noqa: PLC0415 - heavy imports stay inside the job
-    from measure.pipeline import measure_cloud_file
-    from stereo_recon.quality import camera_motion_check, check_recording, checks_from_reconstruction
-    from stereo_recon.reconstruct import ReconstructConfig
-    from stereo_recon.validate import check_output_dir
+    from stereo_recon.core.validate import check_output_dir
+    from stereo_recon.quality import check_recording
     from stereo_recon.video import open_stereo_source
 
     t0 = time.perf_counter()
     video = Path(video)
     if not video.exists():
         raise InputError(f"{video}: no such file or folder")
-    _, mcfg = validate_job(config)
+    validate_job(config)
     final = RunPaths(check_output_dir(out_dir))
     source = open_stereo_source(video)
     rig = parse_calib_arg(str(calib), image_size=source.eye_size)
-    rcfg = replace(ReconstructConfig(poses=config.poses, rectified=config.rectified), **config.reconstruct_overrides)
-    rig, rcfg, checks = check_recording(source, rig, rcfg, calib)
+    rig, rcfg, checks = check_recording(source, rig, config.reconstruct, calib)
     fingerprint = input_fingerprint(video, calib, rcfg)
     problem = reuse_problem(final, fingerprint) if config.resume else None
     stages: dict[str, dict] = {}
-    failure: StereoReconError | None = None
     progress = StageProgress(config=ProgressConfig(enabled=not config.quiet))
     with staged_output_dir(final.root, keep=_keep_foreign) as tmp:
         paths = RunPaths(tmp)
@@ -248,32 +205,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
             if config.resume:   # nothing to resume in a new folder: no warning for that
                 (log.warning if final.root.exists() else log.info)("resume: %s; reconstructing again", problem)
             stages["reconstruct"] = _reconstruct_stage(video, rig, tmp, rcfg, calib, progress)
-        meta = json.loads(paths.run_json.read_text())
-        centres = _camera_centres(paths.poses)
-        checks += checks_from_reconstruction(meta)
-        motion = camera_motion_check(meta, centres)
-        checks += [motion] if motion is not None else []
-        up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
-        t1 = time.perf_counter()
-        try:
-            result = measure_cloud_file(
-                paths.cloud, paths.root, mcfg, up_hint=up, centre_hint=None if centres is None else centres.mean(axis=0),
-                regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
-                reconstruction_rel_sigma=config.reconstruction_rel_sigma, checks=checks, camera_centres=centres,
-                reconstruction_abs_m=depth_sigma_m(meta)[0] if config.depth_uncertainty else None,
-                record_path=final.cloud, progress=progress, case=config.case)
-            progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
-            stages["measure"] = {"status": "done", "time_s": time.perf_counter() - t1}
-        except StereoReconError as err:
-            failure = err if isinstance(err, StageError) else StageError("measure", str(err))
-            failed = [c for c in checks if c["status"] == "fail"]
-            if failed:  # the likely cause, said with the failure
-                failure = StageError("measure", f"{str(failure).removeprefix('measure: ')} (data quality: "
-                                                + "; ".join(f"{c['name']}: {c['detail']}" for c in failed) + ")")
-            stages["measure"] = {"status": "failed", "error": str(failure)}
-            result = {}
-        except Exception as err:
-            raise StageError("measure", f"{type(err).__name__}: {err}") from err
+        result, stages["measure"], failure = _measure_stage(paths, final, config, checks, progress)
         summary = {
             "video": str(video), "calib": str(calib), "out_dir": str(final.root),
             **{k: result.get(k) for k in ("length_m", "width_m", "height_m", "uncertainty_m", "verdict", "data_quality")},
@@ -289,6 +221,43 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     if failure is not None:
         raise failure
     return summary
+
+
+def _measure_stage(paths: RunPaths, final: RunPaths, config: RunConfig, checks: list[dict], progress):
+    """Measure the reconstruction in ``paths`` into the same folder, with the reconstruction's hints and checks.
+
+    ``checks`` (the recording's gates) gains the reconstruction's own. Returns (measurement dict or {}, the
+    stage's record for job.json, the StageError to raise once job.json is written, or None).
+    """
+    from measure.pipeline import measure_cloud_file
+    from stereo_recon.app.evidence import keyframe_with_box
+    from stereo_recon.quality import camera_motion_check, checks_from_reconstruction
+
+    meta = json.loads(paths.run_json.read_text())
+    centres = _camera_centres(paths.poses)
+    checks += checks_from_reconstruction(meta)
+    motion = camera_motion_check(meta, centres)
+    checks += [motion] if motion is not None else []
+    up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
+    t1 = time.perf_counter()
+    try:
+        result = measure_cloud_file(
+            paths.cloud, paths.root, config.measure, up_hint=up, centre_hint=None if centres is None else centres.mean(axis=0),
+            regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
+            reconstruction_rel_sigma=config.reconstruction_rel_sigma, checks=checks, camera_centres=centres,
+            reconstruction_abs_m=depth_sigma_m(meta)[0] if config.depth_uncertainty else None,
+            record_path=final.cloud, progress=progress, case=config.case, keyframe=keyframe_with_box)
+        progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
+        return result, {"status": "done", "time_s": time.perf_counter() - t1}, None
+    except StereoReconError as err:
+        failure = err if isinstance(err, StageError) else StageError("measure", str(err))
+        failed = [c for c in checks if c["status"] == "fail"]
+        if failed:  # the likely cause, said with the failure
+            failure = StageError("measure", f"{str(failure).removeprefix('measure: ')} (data quality: "
+                                            + "; ".join(f"{c['name']}: {c['detail']}" for c in failed) + ")")
+        return {}, {"status": "failed", "error": str(failure)}, failure
+    except Exception as err:
+        raise StageError("measure", f"{type(err).__name__}: {err}") from err
 
 
 def _reconstruct_stage(video: Path, rig, out: Path, rcfg, calib, progress) -> dict:

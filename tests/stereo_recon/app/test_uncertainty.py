@@ -1,4 +1,4 @@
-"""The reconstruction's depth-geometry uncertainty (stereo_recon.uncertainty) and its combination in measure."""
+"""The reconstruction's depth-geometry uncertainty (stereo_recon.app.uncertainty) and its combination in measure."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import pytest
 
 from measure.pipeline import combined_uncertainty
-from stereo_recon.errors import ConfigError
-from stereo_recon.uncertainty import ReconstructionErrorModel, depth_sigma_m
+from stereo_recon.core.errors import ConfigError
+from stereo_recon.app.uncertainty import ReconstructionErrorModel, depth_sigma_m
 
 
 def _meta(disparity_px: float, motion: bool, f: float = 528.0, b: float = 0.12) -> dict:

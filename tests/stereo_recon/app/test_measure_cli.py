@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from measure.cloud_io import write_cloud
+from stereo_recon.core.cloud_io import write_cloud
 from measure.synthetic_cloud import MODEL_TRUCK, SceneSpec, TruckShape, make_truck_scene
 from measure.schema import read_measurement  # every measurement.json a test writes is checked against its schema
-from stereo_recon.cli import main
+from stereo_recon.app.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -160,8 +160,8 @@ def test_reconstruction_error_widens_the_verdict_interval(tmp_path):
 
 
 def test_run_parses_the_reconstruction_sigma_option():
-    from stereo_recon.errors import ConfigError
-    from stereo_recon.pipeline_cli import _parse_sigma_pct
+    from stereo_recon.core.errors import ConfigError
+    from stereo_recon.app.pipeline_cli import _parse_sigma_pct
 
     assert _parse_sigma_pct("0.3,1.5,0.5") == pytest.approx({"length": 0.003, "width": 0.015, "height": 0.005})
     for bad in ("1,2", "a,b,c", "1,-1,1", "1,nan,1"):

@@ -5,9 +5,10 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 
-from stereo_recon.manifest import write_json_atomic
+from stereo_recon.core.atomic import write_json_atomic
 from stereo_recon.motion_stereo import MotionStereoConfig
-from stereo_recon.pipeline import RunPaths, input_fingerprint, output_record, reuse_problem
+from stereo_recon.app.pipeline import input_fingerprint, output_record, reuse_problem
+from stereo_recon.core.paths import RunPaths
 from stereo_recon.reconstruct import ReconstructConfig
 
 

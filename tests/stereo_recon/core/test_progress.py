@@ -1,4 +1,4 @@
-"""Terminal progress (stereo_recon.progress): tqdm bars with k/N on a terminal, plain lines elsewhere, logs above bars."""
+"""Terminal progress (stereo_recon.core.progress): tqdm bars with k/N on a terminal, plain lines elsewhere, logs above bars."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import io
 import logging
 import re
 
-from stereo_recon.progress import ProgressConfig, StageProgress, TqdmLogHandler
+from stereo_recon.core.progress import ProgressConfig, StageProgress, TqdmLogHandler
 
 
 class _Tty(io.StringIO):

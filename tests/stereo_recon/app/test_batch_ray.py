@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 SAMPLE = REPO / "sample_data"
 CALIB = SAMPLE / "SN28000001.conf"
 
@@ -69,7 +69,7 @@ def _batch(tmp: Path, label: str, videos, *options: str, env: dict | None = None
     tmp/<label>: every run writes the same paths. Returns (exit code, tree, stderr)."""
     out = tmp / "out"
     pythonpath = os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
-    proc = subprocess.run([sys.executable, "-m", "stereo_recon.cli", "batch", *map(str, videos), "--calib", str(CALIB),
+    proc = subprocess.run([sys.executable, "-m", "stereo_recon.app.cli", "batch", *map(str, videos), "--calib", str(CALIB),
                            "--out", str(out), *options], capture_output=True, text=True, timeout=600,
                           env={**{k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"},
                                "PYTHONPATH": pythonpath, "MPLBACKEND": "Agg", **(env or {})})
@@ -124,8 +124,9 @@ def test_local_ray_instance_matches_local_pool(recordings, local_run):
 
 
 def test_ray_side_crash_is_one_line_and_others_finish(loopback_cluster, monkeypatch, capfd, tmp_path):
-    from stereo_recon import batch_ray
-    from stereo_recon.batch import Job, run_jobs
+    from stereo_recon.app import batch_ray
+    from stereo_recon.app.batch import run_jobs
+    from stereo_recon.app.jobs import Job
 
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     # An input that vanishes after the driver looked at it cannot be shipped: that job alone fails.

@@ -1,62 +1,23 @@
-"""Run manifests and safe output: input hashes, library versions, timings, atomic writes."""
+"""The one atomic writer and the one folder transaction of the project.
+
+Files: :func:`write_atomic` (and its text, bytes and JSON forms) write a temporary sibling and rename it,
+so a reader sees the old file or the complete new one. Folders: :func:`staged_output_dir` yields a
+temporary sibling folder that replaces the output folder in one step on success and vanishes on failure.
+"""
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
-import platform
 import shutil
 import sys
 import tempfile
-import time
-from dataclasses import asdict, is_dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
-import numpy as np
-
-
-def sha256_file(path: str | os.PathLike, chunk_bytes: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while chunk := f.read(chunk_bytes):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def library_versions() -> dict[str, str]:
-    """Versions of Python and the numeric/vision libraries that are importable (imports nothing new if absent)."""
-    out = {"python": platform.python_version(), "platform": platform.platform()}
-    from importlib import metadata
-
-    for dist in ("stereo-recon", "numpy", "scipy", "opencv-contrib-python-headless", "open3d", "pycolmap", "matplotlib", "kornia", "torch"):
-        try:
-            out[dist] = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            pass
-    return out
-
-
-def to_jsonable(obj: Any) -> Any:
-    """Convert dataclasses, numpy scalars/arrays and paths into JSON-serialisable values."""
-    if is_dataclass(obj) and not isinstance(obj, type):
-        return to_jsonable(asdict(obj))
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
+from stereo_recon.core.errors import InputError
+from stereo_recon.core.manifest import to_jsonable
 
 
 def _umask() -> int:
@@ -70,15 +31,20 @@ def set_default_mode(path: str | os.PathLike) -> None:
     os.chmod(path, 0o666 & ~_umask())
 
 
-def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
-    """Write JSON to ``path`` via a temporary file in the same folder and an atomic rename."""
+def write_atomic(path: str | os.PathLike, write: Callable[[str], None], suffix: str = "") -> Path:
+    """Make ``path`` through ``write(tmp)`` on a temporary file in the same folder, then one atomic rename.
+
+    path: the file to make (its folder is created). write: fills the temporary file, given its path.
+    suffix: the temporary file's suffix, for writers that choose the format by it (cv2.FileStorage).
+    A reader sees the old file or the complete new one; on any failure the temporary file is removed.
+    The file gets the permissions a plain ``open`` would give (mkstemp makes 0600).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(to_jsonable(data), f, indent=2, sort_keys=False)
-            f.write("\n")
+        write(tmp)
         set_default_mode(tmp)
         os.replace(tmp, path)
     except BaseException:
@@ -86,6 +52,21 @@ def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
             os.unlink(tmp)
         raise
     return path
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
+    """Write bytes to ``path`` atomically (:func:`write_atomic`)."""
+    return write_atomic(path, lambda tmp: Path(tmp).write_bytes(data))
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, encoding: str | None = "utf-8") -> Path:
+    """Write text to ``path`` atomically (:func:`write_atomic`); encoding None: the locale's, as ``open`` does."""
+    return write_atomic(path, lambda tmp: Path(tmp).write_text(text, encoding=encoding))
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
+    """Write ``data`` (made JSON-ready by ``to_jsonable``) as indented JSON with a final newline, atomically."""
+    return write_text_atomic(path, json.dumps(to_jsonable(data), indent=2, sort_keys=False) + "\n", encoding=None)
 
 
 # Temporary and superseded folders of an output folder NAME are hidden siblings named
@@ -203,8 +184,6 @@ def staged_output_dir(final_dir: str | os.PathLike, overwrite: bool = True, keep
     runs into the same place are removed first (``remove_stale_temps``). An output folder that
     cannot be made or written is one InputError line.
     """
-    from stereo_recon.errors import InputError
-
     final = Path(os.path.realpath(final_dir))
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
@@ -238,37 +217,46 @@ def staged_output_dir(final_dir: str | os.PathLike, overwrite: bool = True, keep
         raise
 
 
-class Stopwatch:
-    """Collects named wall-clock timings (seconds) for a run manifest."""
+class FileTransaction:
+    """Files written under temporary names, moved to their final paths together when all are written."""
 
-    def __init__(self) -> None:
-        self.timings_s: dict[str, float] = {}
+    def __init__(self, tmp_dir: Path) -> None:
+        self.tmp_dir = tmp_dir
+        self._moves: list[tuple[Path, Path]] = []
 
-    @contextlib.contextmanager
-    def stage(self, name: str) -> Iterator[None]:
-        t0 = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.timings_s[name] = self.timings_s.get(name, 0.0) + time.perf_counter() - t0
+    def temp(self, name: str) -> Path:
+        """A temporary path for a file named ``name`` (inside the transaction's hidden folder)."""
+        return self.tmp_dir / name
+
+    def add(self, tmp: str | os.PathLike, final: str | os.PathLike) -> Path:
+        """Move ``tmp`` to ``final`` at the commit (in the order added; ``final``'s folder is made then)."""
+        self._moves.append((Path(tmp), Path(final)))
+        return Path(final)
+
+    def _commit(self) -> None:
+        for tmp, final in self._moves:
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, final)
 
 
-def run_manifest(command: str, inputs: dict[str, str | os.PathLike], parameters: Any, timings_s: dict[str, float], seed: int | None = None, extra: dict | None = None) -> dict:
-    """Build a manifest dict: command line, inputs with sha256, parameters, versions, timings, seed."""
-    ins = {}
-    for name, p in inputs.items():
-        p = Path(p)
-        ins[name] = {"path": str(p), "sha256": sha256_file(p) if p.is_file() else None}
-    man = {
-        "command": command,
-        "argv": sys.argv,
-        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "inputs": ins,
-        "parameters": to_jsonable(parameters),
-        "seed": seed,
-        "versions": library_versions(),
-        "timings_s": timings_s,
-    }
-    if extra:
-        man.update(to_jsonable(extra))
-    return man
+@contextlib.contextmanager
+def staged_files(folder: str | os.PathLike, prefix: str = "staged") -> Iterator[FileTransaction]:
+    """Yield a :class:`FileTransaction` whose temporary folder is a hidden child of ``folder``.
+
+    On success every added file is moved into place; on any exception nothing is moved and the folders
+    this call created for ``folder`` are removed again when empty. The temporary folder always goes.
+    """
+    folder = Path(folder)
+    made_dirs = [d for d in [folder, *folder.parents] if not d.exists()]  # removed again on failure
+    folder.mkdir(parents=True, exist_ok=True)
+    tx = FileTransaction(Path(tempfile.mkdtemp(prefix=f".{prefix}.", dir=folder)))
+    done = False
+    try:
+        yield tx
+        tx._commit()
+        done = True
+    finally:
+        shutil.rmtree(tx.tmp_dir, ignore_errors=True)
+        for d in made_dirs if not done else ():
+            if d.is_dir() and not any(d.iterdir()):
+                d.rmdir()

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from stereo_recon.bench import envelope_row, envelope_summary, write_envelope
+from stereo_recon.app.bench import envelope_row, envelope_summary, write_envelope
 from stereo_recon.synthetic.envelope import draw_spec
 
 
@@ -95,3 +95,23 @@ def test_write_envelope_outputs(tmp_path):
     md = (tmp_path / "envelope.md").read_text()
     assert "TUNING seed" in md and "measure: no ground" in md and "## By factor" in md
     assert (tmp_path / "envelope.png").stat().st_size > 10_000
+
+
+def test_random_bench_takes_the_ray_options(tmp_path, monkeypatch, capsys):
+    # bench --random hands --address and the per-job resources to the executor, as Table 2 bench and batch do.
+    from stereo_recon.app import batch
+    from stereo_recon.app.cli import main
+
+    seen = {}
+
+    def fake_run_jobs(jobs, workers=1, executor="local", progress=None, ray_options=None):
+        seen.update(executor=executor, ray_options=ray_options)
+        return [{"name": j.name, "ok": False, "error": "not run", "time_s": 0.0} for j in jobs]
+
+    monkeypatch.setattr(batch, "run_jobs", fake_run_jobs)
+    main(["bench", "--random", "1", "--out", str(tmp_path / "b"), "--executor", "ray", "--address", "ray://head:10001",
+          "--cpus-per-job", "2", "-q"])
+    assert seen["executor"] == "ray"
+    assert seen["ray_options"].address == "ray://head:10001" and seen["ray_options"].cpus_per_job == 2.0
+    assert main(["bench", "--random", "1", "--out", str(tmp_path / "c"), "--address", "auto", "-q"]) == 2
+    assert "only with --executor ray" in capsys.readouterr().err

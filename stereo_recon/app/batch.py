@@ -14,81 +14,15 @@ import logging
 import math
 import multiprocessing as mp
 import os
-import socket
-import tempfile
-import time
-import traceback
-from dataclasses import dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Callable, Sequence
 
-from stereo_recon.errors import ConfigError, StereoReconError
-from stereo_recon.manifest import set_default_mode
+from stereo_recon.app.jobs import Job, call_job, resolve_job
+from stereo_recon.core.errors import ConfigError
+from stereo_recon.core.paths import RunPaths
+from stereo_recon.core.atomic import write_atomic
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Job:
-    """One unit of batch work: ``func(*args)`` must be a module-level (picklable) function returning a dict.
-
-    ``inputs`` and ``outputs`` name the files/folders among ``args`` (also inside dataclass args)
-    that the job reads and writes: they are made absolute on the driver, and on Ray the inputs
-    are shipped to a node that lacks them and the outputs come back to the driver.
-    """
-
-    name: str
-    func: Callable[..., dict]
-    args: tuple
-    inputs: tuple[str, ...] = ()        # files or folders the job reads
-    outputs: tuple[str, ...] = ()       # folders the job writes
-    reuse_outputs: bool = False         # existing output folders are inputs too (``--resume``)
-    info: dict = field(default_factory=dict, hash=False)  # copied into the job's result (e.g. its video), also on failure
-
-
-def substitute_paths(obj: Any, mapping: Mapping[str, str]) -> Any:
-    """``obj`` with every str/Path value equal to a key of ``mapping`` replaced by its value.
-
-    Walks tuples, lists, dicts and dataclass fields; a Path stays a Path.
-    """
-    if isinstance(obj, Path):
-        return Path(mapping[str(obj)]) if str(obj) in mapping else obj
-    if isinstance(obj, str):
-        return mapping.get(obj, obj)
-    if isinstance(obj, (tuple, list)):
-        return type(obj)(substitute_paths(v, mapping) for v in obj)
-    if isinstance(obj, dict):
-        return {k: substitute_paths(v, mapping) for k, v in obj.items()}
-    if is_dataclass(obj) and not isinstance(obj, type):
-        changed = {f.name: substitute_paths(getattr(obj, f.name), mapping) for f in fields(obj) if f.init}
-        return replace(obj, **changed)
-    return obj
-
-
-def resolve_job(job: Job) -> Job:
-    """The job with its inputs and outputs as absolute paths of this (the driver's) machine."""
-    mapping = {str(p): os.path.abspath(p) for p in (*job.inputs, *job.outputs)}
-    return replace(job, args=substitute_paths(job.args, mapping), inputs=tuple(mapping[str(p)] for p in job.inputs),
-                   outputs=tuple(mapping[str(p)] for p in job.outputs))
-
-
-def one_line(err: BaseException) -> str:
-    """``'Type: message'`` on one line (whitespace collapsed)."""
-    text = " ".join(str(err).split())
-    return f"{type(err).__name__}: {text}" if text else type(err).__name__
-
-
-def _call(job: Job) -> dict:
-    t0 = time.perf_counter()
-    base = {"name": job.name, **job.info, "host": socket.gethostname()}
-    try:
-        out = job.func(*job.args)
-        return {**base, "ok": True, "error": None, "time_s": time.perf_counter() - t0, **out}
-    except StereoReconError as err:
-        return {**base, "ok": False, "error": " ".join(str(err).split()), "time_s": time.perf_counter() - t0}
-    except Exception as err:  # a crash in one recording must not stop the fleet
-        log.debug("job %s crashed:\n%s", job.name, traceback.format_exc())
-        return {**base, "ok": False, "error": one_line(err), "time_s": time.perf_counter() - t0}
 
 
 def run_jobs(jobs: Sequence[Job], workers: int | None = 1, executor: str = "local",
@@ -100,7 +34,7 @@ def run_jobs(jobs: Sequence[Job], workers: int | None = 1, executor: str = "loca
     workers : processes (local; None = 1, 1 runs in this process) or, on Ray, the most jobs
         submitted at once (None: all; a local Ray instance then gets this many job slots).
     executor : ``'local'`` (process pool) or ``'ray'`` (the ``ray`` extra; see ``batch_ray``).
-    ray_options : :class:`stereo_recon.batch_ray.RayOptions` (address, resources per job, input shipping).
+    ray_options : :class:`stereo_recon.app.batch_ray.RayOptions` (address, resources per job, input shipping).
     """
     if executor not in {"local", "ray"}:
         raise ConfigError(f"--executor: unknown executor '{executor}' (use local or ray)")
@@ -108,20 +42,20 @@ def run_jobs(jobs: Sequence[Job], workers: int | None = 1, executor: str = "loca
         raise ConfigError(f"--workers: must be >= 1, got {workers}")
     jobs = [resolve_job(j) for j in jobs]
     if executor == "ray":
-        from stereo_recon.batch_ray import RayOptions, run_jobs_ray
+        from stereo_recon.app.batch_ray import RayOptions, run_jobs_ray
 
         return run_jobs_ray(jobs, ray_options or RayOptions(), workers=workers, progress=progress)
     results: dict[int, dict] = {}
     workers = workers or 1
     if workers <= 1 or len(jobs) <= 1:
         for i, job in enumerate(jobs):
-            results[i] = _call(job)
+            results[i] = call_job(job)
             if progress:
                 progress(results[i])
     else:
         # 'spawn' keeps workers free of the parent's threads (Open3D/OpenCV pools).
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-            futs = {pool.submit(_call, job): i for i, job in enumerate(jobs)}
+            futs = {pool.submit(call_job, job): i for i, job in enumerate(jobs)}
             for fut in cf.as_completed(futs):
                 i = futs[fut]
                 results[i] = fut.result()
@@ -160,10 +94,10 @@ def _read_json(path: Path) -> dict:
 
 def _video_sha256(result: dict, out_dir: Path | None) -> str:
     """The video's sha256 as the run recorded it (run.json), else hashed here if the file is readable."""
-    from stereo_recon.manifest import sha256_file
+    from stereo_recon.core.manifest import sha256_file
 
     if out_dir is not None:
-        recorded = _read_json(out_dir / "run.json").get("inputs", {}).get("video", {})
+        recorded = _read_json(RunPaths(out_dir).run_json).get("inputs", {}).get("video", {})
         if isinstance(recorded, dict) and recorded.get("sha256"):
             return recorded["sha256"]
     video = result.get("video")
@@ -176,7 +110,7 @@ def _video_sha256(result: dict, out_dir: Path | None) -> str:
 def summary_row(result: dict) -> dict:
     """One typed row of summary.csv from a job result (and its measurement.json when present)."""
     out_dir = Path(result["out_dir"]) if result.get("out_dir") else None
-    m = _read_json(out_dir / "measurement.json") if out_dir is not None and result.get("ok") else {}
+    m = _read_json(RunPaths(out_dir).measurement) if out_dir is not None and result.get("ok") else {}
     unc = result.get("uncertainty_m") or {}
     verdict = result.get("verdict") if isinstance(result.get("verdict"), dict) else {}
     reg = verdict.get("regulation")
@@ -221,16 +155,12 @@ def write_summary_csv(path: str | os.PathLike, results: Sequence[dict], merge: b
     for r in results:
         row = summary_row(r)
         rows[row["video"] or row["name"]] = row
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
+
+    def write(tmp: str) -> None:
+        with open(tmp, "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=SUMMARY_COLUMNS)
             w.writeheader()
             w.writerows(rows.values())
-        set_default_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+
+    write_atomic(path, write)
     return path

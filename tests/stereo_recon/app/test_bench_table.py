@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from stereo_recon.bench import (PAPER_AVERAGE_ERROR_PCT, bench_summary, parse_truck_range, table_markdown,
+from stereo_recon.app.bench import (PAPER_AVERAGE_ERROR_PCT, bench_summary, parse_truck_range, table_markdown,
                                 verdict_matches, write_bench)
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 
 
 def _result(name, truth, measured, t=10.0):
@@ -82,9 +82,9 @@ def test_study_sweeps_the_paper_values_and_scores_our_default(tmp_path):
     """The d_h study re-measures clouds over 0.06-0.08 m and adds our scale-free default as its own row."""
     import numpy as np
 
-    from measure.cloud_io import write_cloud
+    from stereo_recon.core.cloud_io import write_cloud
     from measure.synthetic_cloud import MODEL_TRUCK, make_truck_scene
-    from stereo_recon.bench import run_study
+    from stereo_recon.app.bench import run_study
 
     pts, truth = make_truck_scene(MODEL_TRUCK, rng=np.random.default_rng(3))
     path = write_cloud(tmp_path / "truck.ply", pts)

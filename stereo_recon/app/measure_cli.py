@@ -6,7 +6,8 @@ import argparse
 import math
 from pathlib import Path
 
-from stereo_recon.errors import InputError
+from stereo_recon.core.errors import InputError
+from stereo_recon.core.paths import RunPaths
 
 # CLI flag -> MeasureConfig field (overrides of the main parameters).
 _OVERRIDES = {
@@ -83,11 +84,11 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     """Handler: measure, write the outputs, print a short summary."""
-    from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
-    from stereo_recon.progress import ProgressConfig, StageProgress
-
     from measure.limits import load_regulation
-    from stereo_recon.validate import check_number, check_output_dir
+    from measure.pipeline import MeasureConfig, load_config, measure_cloud_file
+    from stereo_recon.app.evidence import keyframe_with_box
+    from stereo_recon.core.progress import ProgressConfig, StageProgress
+    from stereo_recon.core.validate import check_number, check_output_dir
 
     # Everything is checked before any work: options, config, regulation and class, output folder.
     for flag, (_, typ, _) in _OVERRIDES.items():
@@ -110,7 +111,7 @@ def run(args) -> int:
         res = measure_cloud_file(args.cloud, out, cfg, up_hint=args.up, centre_hint=args.centre, regulation=args.regulation,
                                  vehicle_class=args.vehicle_class, scale=args.scale, plots=not args.no_plots,
                                  html=not args.no_plots, progress=progress, case=case_fields(args),
-                                 units=args.units, centre_strict=args.centre is not None)
+                                 units=args.units, centre_strict=args.centre is not None, keyframe=keyframe_with_box)
     u = res["uncertainty_m"]
     v = res.get("verdict") or {}
     print(f"{args.cloud}: truck of {res['clusters']['n_truck_points']} points")
@@ -123,5 +124,5 @@ def run(args) -> int:
         print(f"{line}  [{res['rules'][d]}]  {vd.get('verdict', '')}")
     print(f"  verdict: {v.get('overall')}{' — ' + v['reason'] if v.get('reason') else ''}")
     print(f"  {data_quality_line(res.get('data_quality'))}")
-    print(f"  written: {out / 'measurement.json'}")
+    print(f"  written: {RunPaths(out).measurement}")
     return 0

@@ -15,8 +15,9 @@ from typing import Sequence
 
 import numpy as np
 
-from stereo_recon.errors import ConfigError, InputError
-from stereo_recon.manifest import write_json_atomic
+from stereo_recon.core.errors import ConfigError, InputError
+from stereo_recon.core.paths import RunPaths
+from stereo_recon.core.atomic import write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -52,10 +53,12 @@ def _scene_files(scene_dir: Path) -> tuple[Path, Path, dict]:
     return videos[0], calibs[0], json.loads(truth_path.read_text())
 
 
-def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int | None, poses: str,
-              reconstruct_overrides: dict | None = None) -> dict:
-    """Render (if needed) one preset, run the full pipeline on it and compare with its truth."""
-    from stereo_recon.pipeline import RunConfig, run_video
+def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int | None, reconstruct=None) -> dict:
+    """Render (if needed) one preset, run the full pipeline on it and compare with its truth.
+
+    reconstruct: the ReconstructConfig of every truck (None: the defaults).
+    """
+    from stereo_recon.app.pipeline import RunConfig, run_video
     from stereo_recon.synthetic import render_sequence
 
     scene = Path(scene_dir)
@@ -64,8 +67,8 @@ def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int 
         render_sequence(preset, scene, seed=seed, frames=frames)
     render_s = time.perf_counter() - t0
     video, calib, truth = _scene_files(scene)
-    summary = run_video(video, calib, run_dir, RunConfig(poses=poses, resume=True, quiet=True,
-                                                         reconstruct_overrides=dict(reconstruct_overrides or {})))
+    rcfg = {} if reconstruct is None else {"reconstruct": reconstruct}
+    summary = run_video(video, calib, run_dir, RunConfig(resume=True, quiet=True, **rcfg))
     err_pct = {d: 100.0 * abs(summary[f"{d}_m"] - truth[f"{d}_m"]) / truth[f"{d}_m"] for d in DIMS}
     err_pct["overall"] = float(np.mean([err_pct[d] for d in DIMS]))
     return {
@@ -298,7 +301,7 @@ def envelope_factors(spec) -> dict[str, str]:
 def bench_random_one(seed: int, index: int, draws_dir: str, runs_dir: str, max_frames: int | None, scale: str | None,
                      resolution: str) -> dict:
     """Render (or reuse) draw ``index`` of ``seed`` and run the full pipeline on it with default settings (as ``run``)."""
-    from stereo_recon.pipeline import RunConfig, run_video
+    from stereo_recon.app.pipeline import RunConfig, run_video
     from stereo_recon.synthetic.envelope import draw_dir, draw_spec, ensure_rendered
 
     t0 = time.perf_counter()
@@ -307,7 +310,7 @@ def bench_random_one(seed: int, index: int, draws_dir: str, runs_dir: str, max_f
     render_s = time.perf_counter() - t0
     video, calib, _ = _scene_files(scene)
     summary = run_video(video, calib, runs_dir, RunConfig(resume=True, quiet=True))
-    mpath = Path(runs_dir) / "measurement.json"
+    mpath = RunPaths(Path(runs_dir)).measurement
     measurement = json.loads(mpath.read_text()) if mpath.is_file() else {}
     return {**summary, "data_quality": measurement.get("data_quality"), "render_time_s": render_s}
 

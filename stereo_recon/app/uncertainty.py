@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass, field
 
 from measure.limits import DIMENSIONS
-from stereo_recon.errors import ConfigError
+from stereo_recon.core.errors import ConfigError
 
 
 @dataclass(frozen=True)

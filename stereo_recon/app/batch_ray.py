@@ -32,9 +32,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
-from stereo_recon.batch import Job, _call, one_line, substitute_paths
-from stereo_recon.errors import ConfigError
-from stereo_recon.manifest import write_json_atomic, staged_output_dir
+from stereo_recon.app.jobs import Job, call_job, one_line, substitute_paths
+from stereo_recon.core.errors import ConfigError
+from stereo_recon.core.atomic import staged_output_dir, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -255,7 +255,7 @@ def run_on_node(job: Job, states: dict, ship_mode: str, shipped: tuple[str, ...]
             if job.reuse_outputs and k < len(reused) and reused[k] is not None:
                 _unpack(reused[k], dest)
             to_node[path] = str(dest / os.path.basename(path.rstrip("/")))
-        result = _call(replace(job, args=substitute_paths(job.args, to_node)))
+        result = call_job(replace(job, args=substitute_paths(job.args, to_node)))
         outputs = {p: _pack(to_node[p]) if os.path.exists(to_node[p]) else None for p in job.outputs}
         return {"result": result, "outputs": outputs, "moved": {v: k for k, v in to_node.items()}}
     finally:
@@ -293,9 +293,10 @@ def _relocate_value(obj, moved: dict[str, str]):
 def _refresh_output_record(folder: Path, changed: list[Path]) -> None:
     """Re-record the size and sha256 of relocated files in the job's job.json, so that ``run --resume``
     (which checks them) still reuses the reconstruction the node made."""
-    from stereo_recon.pipeline import output_record
+    from stereo_recon.app.pipeline import output_record
+    from stereo_recon.core.paths import RunPaths
 
-    job = folder / "job.json"
+    job = RunPaths(folder).summary
     names = [f.name for f in changed if f.parent == folder]
     if not names or not job.is_file():
         return

@@ -1,0 +1,55 @@
+"""Command-line options shared by several subcommands, declared once, and their mapping onto ReconstructConfig."""
+
+from __future__ import annotations
+
+import argparse
+
+# --refine-poses -> ReconstructConfig.refine_poses_sfm
+REFINE_POSES_CHOICES = {"auto": None, "on": True, "off": False}
+PRESETS = ("fast", "balanced", "quality", "wls")
+
+
+def add_pose_options(p: argparse.ArgumentParser) -> None:
+    """--motion-stereo and --refine-poses (run, batch, bench, reconstruct)."""
+    p.add_argument("--motion-stereo", action="store_true",
+                   help="match each fused view with a later frame ~0.11 x the depth away (a wide baseline) and fuse "
+                        "that depth, also on near scenes (far scenes get it anyway); vo or gt poses only")
+    p.add_argument("--refine-poses", choices=tuple(REFINE_POSES_CHOICES), default="auto",
+                   help="bundle-adjust the fused views' VO poses with pycolmap SfM (auto: far scenes only; vo poses)")
+
+
+def add_frame_options(p: argparse.ArgumentParser) -> None:
+    """--frames, --step, --preset, --mesh (run, batch, reconstruct)."""
+    p.add_argument("--frames", default=None, metavar="A:B", help="half-open frame range of the video to use, e.g. 100:400 (default: all)")
+    p.add_argument("--step", type=int, default=1, help="use every N-th frame (default 1)")
+    p.add_argument("--preset", default="balanced", choices=PRESETS, help="disparity (SGBM) preset (default balanced)")
+    p.add_argument("--mesh", action="store_true", help="also write mesh.ply (marching cubes of the TSDF volume)")
+
+
+def reconstruct_overrides(args) -> dict:
+    """ReconstructConfig fields for the options above that differ from their defaults (as ``reconstruct`` takes them)."""
+    from stereo_recon.motion_stereo import MotionStereoConfig
+    from stereo_recon.video import parse_frame_range
+
+    overrides: dict = {}
+    if getattr(args, "motion_stereo", False):
+        overrides["motion_stereo"] = MotionStereoConfig()
+    refine = REFINE_POSES_CHOICES[getattr(args, "refine_poses", "auto")]
+    if refine is not None:
+        overrides["refine_poses_sfm"] = refine
+    if getattr(args, "frames", None) is not None and isinstance(args.frames, str):   # bench's --frames is a count
+        overrides["frame_range"] = parse_frame_range(args.frames)
+    if getattr(args, "step", 1) != 1:
+        overrides["step"] = args.step
+    if getattr(args, "preset", "balanced") != "balanced":
+        overrides["disparity_preset"] = args.preset
+    if getattr(args, "mesh", False):
+        overrides["mesh"] = True
+    return overrides
+
+
+def reconstruct_config(args):
+    """The one ReconstructConfig of a command (validated on construction: ConfigError for a bad combination)."""
+    from stereo_recon.reconstruct import ReconstructConfig
+
+    return ReconstructConfig(poses=args.poses, rectified=getattr(args, "rectified", None), **reconstruct_overrides(args))
