@@ -3,7 +3,7 @@
 A source streams ``StereoFrame`` objects one at a time (memory does not grow with the video's
 length), honours a frame range and a step, skips isolated undecodable frames (counted in
 ``bad_frames``), and checks its eye size against a calibration (``validate_against_rig``).
-``KeyframeSelector`` picks frames by image motion for the stages that need fewer frames.
+Keyframe selection (by pose or by image motion) is in ``views``.
 
 Side-by-side frames hold the left eye in the left half (:mod:`stereo_recon.conventions`).
 """
@@ -326,71 +326,5 @@ def validate_against_rig(source: StereoSource, rig):
     return scaled
 
 
-@dataclass(frozen=True)
-class KeyframeConfig:
-    """When to take a new keyframe (any criterion triggers)."""
-
-    # Median optical-flow magnitude since the last keyframe, as a fraction of the image width.
-    min_flow_frac: float = 0.02
-    # Always take a keyframe after this many frames (None = never forced).
-    max_gap_frames: int | None = 15
-    # Tracked corners; fewer surviving than this fraction of the last keyframe's -> new keyframe.
-    max_corners: int = 300
-    min_tracked_frac: float = 0.5
-    # Images are downscaled to this width for flow (speed; the flow is scaled back).
-    work_width_px: int = 640
-
-
-class KeyframeSelector:
-    """Motion-based keyframe selection: sparse Lucas-Kanade flow from the last keyframe.
-
-    Call ``is_keyframe(index, gray)`` for each frame in order; the first frame is always a keyframe.
-    """
-
-    def __init__(self, config: KeyframeConfig = KeyframeConfig()):
-        self.config = config
-        self._key_gray: np.ndarray | None = None
-        self._key_pts: np.ndarray | None = None
-        self._key_index = -1
-        self.last_flow_px = 0.0
-
-    def _small(self, gray: np.ndarray) -> tuple[np.ndarray, float]:
-        import cv2
-
-        if gray.ndim == 3:
-            gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY)
-        s = min(1.0, self.config.work_width_px / gray.shape[1])
-        if s < 1.0:
-            gray = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        return gray, s
-
-    def _set_key(self, index: int, small: np.ndarray) -> None:
-        import cv2
-
-        self._key_gray = small
-        self._key_pts = cv2.goodFeaturesToTrack(small, self.config.max_corners, 0.01, 7)
-        self._key_index = index
-
-    def is_keyframe(self, index: int, gray: np.ndarray) -> bool:
-        """True when frame ``index`` (grey or BGR image) moved enough from the last keyframe."""
-        import cv2
-
-        small, s = self._small(gray)
-        c = self.config
-        if self._key_gray is None or self._key_pts is None or len(self._key_pts) < 8:
-            self._set_key(index, small)
-            return True
-        if c.max_gap_frames is not None and index - self._key_index >= c.max_gap_frames:
-            self._set_key(index, small)
-            return True
-        pts, st, _ = cv2.calcOpticalFlowPyrLK(self._key_gray, small, self._key_pts, None)
-        ok = st.reshape(-1) == 1
-        if ok.sum() < c.min_tracked_frac * len(self._key_pts):
-            self._set_key(index, small)
-            return True
-        flow = np.linalg.norm((pts - self._key_pts).reshape(-1, 2)[ok], axis=1)
-        self.last_flow_px = float(np.median(flow)) / s
-        if self.last_flow_px >= c.min_flow_frac * gray.shape[1]:
-            self._set_key(index, small)
-            return True
-        return False
+# Keyframe selection lives in ``views`` (one selector by pose or by image motion); these names stay importable here.
+from stereo_recon.views import KeyframeConfig, KeyframeSelector  # noqa: E402,F401
