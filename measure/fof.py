@@ -182,6 +182,7 @@ class _Occupancy:
         return self._general(sel, da, db, dc)
 
     def _shifted(self, dc: int):
+        """(each cell's bit shifted by dc along the bit axis, the cells whose shift leaves their word), cached."""
         if dc not in self._shifted_cache:
             if dc == 0:
                 self._shifted_cache[dc] = (self.bit_sel, None)
@@ -193,6 +194,7 @@ class _Occupancy:
         return self._shifted_cache[dc]
 
     def _general(self, sel: np.ndarray, da: int, db: int, dc: int) -> tuple[np.ndarray, np.ndarray]:
+        """(cells, neighbours) at offset (da, db, dc) for the cells sel, by their word and bit one by one."""
         zc = self.qc[sel] + dc
         w = self.word_base[sel] + (da * self.base_lin + db * self.W) + (zc >> 6)
         bits = self.words[w]

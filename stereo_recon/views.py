@@ -84,6 +84,7 @@ class ViewSelector:
         return False
 
     def _small(self, gray: np.ndarray) -> tuple[np.ndarray, float]:
+        """(grey image downscaled to ``work_width_px``, the scale factor applied)."""
         import cv2
 
         if gray.ndim == 3:
@@ -94,6 +95,7 @@ class ViewSelector:
         return gray, s
 
     def _set_key(self, index: int, small: np.ndarray) -> None:
+        """Make frame ``index`` (its downscaled image) the reference of the flow: its corners to track."""
         import cv2
 
         self._key_gray = small
@@ -101,6 +103,8 @@ class ViewSelector:
         self._key_index = index
 
     def _moved_in_image(self, index: int, gray: np.ndarray) -> bool:
+        """Median LK flow (px) from the last view at least ``min_flow_frac`` x width, too few corners tracked, or
+        ``max_gap_frames`` since it (the first frame always moved)."""
         import cv2
 
         small, s = self._small(gray)

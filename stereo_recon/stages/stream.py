@@ -56,6 +56,7 @@ def view_selector(config: ReconstructConfig, mode: str) -> tuple[ViewSelector | 
 
 
 def _make_vo(setup: Setup):
+    """Stereo VO on the rectified rig of ``setup`` (K px, baseline m); StageError when this build lacks it."""
     try:
         from stereo_recon.odometry import StereoVO
     except ImportError as err:
