@@ -22,6 +22,7 @@ import numpy as np
 from calib.boards import BoardSpec, DetectConfig, Detection, detect_board, reverse_if_flipped
 from calib.rig import StereoRig
 from stereo_recon.core.errors import InputError
+from stereo_recon.core.frames import split_side_by_side
 
 log = logging.getLogger(__name__)
 
@@ -96,14 +97,8 @@ def find_image_pairs(folder: Path) -> list[tuple[str, Path, Path | None]]:
     return [(p.name, p, None) for p in sorted(others, key=lambda p: _natural_key(p.name))]
 
 
-def _split_sbs(frame: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-    h, w = frame.shape[:2]
-    if w % 2:
-        raise InputError(f"{name}: a side-by-side frame must have an even width, got {w}")
-    return frame[:, : w // 2], frame[:, w // 2:]
-
-
-def _read_image(path: Path) -> np.ndarray:
+def read_image(path: Path) -> np.ndarray:
+    """One calibration image as uint8 (deeper images are scaled to 0-255); InputError naming an unreadable file."""
     import cv2
 
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -130,9 +125,9 @@ def iter_folder_pairs(folder: Path, max_pairs: int | None = None) -> Iterator[tu
     size = None
     for name, lp, rp in pairs:
         if rp is None:
-            left, right = _split_sbs(_read_image(lp), str(lp))
+            left, right = split_side_by_side(read_image(lp), str(lp), check_aspect=False)
         else:
-            left, right = _read_image(lp), _read_image(rp)
+            left, right = read_image(lp), read_image(rp)
             if left.shape[:2] != right.shape[:2]:
                 raise InputError(f"{folder}: eyes of different sizes: {lp.name} is {left.shape[1]}x{left.shape[0]} "
                                  f"but {rp.name} is {right.shape[1]}x{right.shape[0]}")
@@ -178,7 +173,7 @@ def iter_video_pairs(path: Path, stride: int = 1, indices: set[int] | None = Non
                 ok, frame = cap.read()
                 if not ok:
                     break
-                left, right = _split_sbs(frame, str(path))
+                left, right = split_side_by_side(frame, str(path), check_aspect=False)
                 yield i, left, right
             elif not cap.grab():
                 break
@@ -287,7 +282,8 @@ class CollectResult:
     background: tuple[np.ndarray, np.ndarray] | None   # a (left, right) frame for the coverage image
 
 
-def _detect_pair(name: str, left: np.ndarray, right: np.ndarray, spec: BoardSpec, cfg: DetectConfig) -> tuple[PairView | None, str]:
+def detect_pair(name: str, left: np.ndarray, right: np.ndarray, spec: BoardSpec, cfg: DetectConfig) -> tuple[PairView | None, str]:
+    """Detect the board in both eyes of one pair: (PairView, "") or (None, why the pair is unusable)."""
     gl, gr = _gray(left), _gray(right)
     dl = detect_board(gl, spec, cfg)
     dr = detect_board(gr, spec, cfg)
@@ -305,41 +301,48 @@ def _detect_pair(name: str, left: np.ndarray, right: np.ndarray, spec: BoardSpec
     return PairView(name, dl, dr, sharpness(gl, dl.corners)), ""
 
 
-def collect_views(source: Path, spec: BoardSpec, config: CalibConfig = CalibConfig()) -> CollectResult:
-    """Detect the board in a folder of pairs or a side-by-side video, choosing video frames automatically."""
-    source = Path(source)
+def _thin_views(views: list[PairView], size, max_frames: int, notes: list[dict]) -> list[PairView]:
+    """At most max_frames views, spread over board poses (the rest noted as not selected)."""
+    if len(views) <= max_frames:
+        return views
+    desc = np.array([pose_descriptor(v.left.corners, size) for v in views])
+    keep = set(select_views(desc, np.array([v.sharpness for v in views]), max_frames, 0.0))
+    notes += [{"view": v.name, "used": False, "reason": "not selected (enough similar views)"}
+              for k, v in enumerate(views) if k not in keep]
+    return [v for k, v in enumerate(views) if k in keep]
+
+
+def _collect_folder(source: Path, spec: BoardSpec, config: CalibConfig) -> CollectResult:
+    """Board views of a folder of left/right pairs (every pair is detected accurately)."""
     notes: list[dict] = []
     views: list[PairView] = []
     background = None
-    if source.is_dir():
-        size = None
-        looked = 0
-        for name, left, right in iter_folder_pairs(source):
-            looked += 1
-            size = (left.shape[1], left.shape[0])
-            if background is None:
-                background = (left, right)
-            v, why = _detect_pair(name, left, right, spec, config.detect)
-            if v is None:
-                notes.append({"view": name, "used": False, "reason": why})
-            else:
-                views.append(v)
-        found = len(views)
-        if len(views) > config.max_frames:
-            desc = np.array([pose_descriptor(v.left.corners, size) for v in views])
-            keep = set(select_views(desc, np.array([v.sharpness for v in views]), config.max_frames, 0.0))
-            for i, v in enumerate(views):
-                if i not in keep:
-                    notes.append({"view": v.name, "used": False, "reason": "not selected (enough similar views)"})
-            views = [v for i, v in enumerate(views) if i in keep]
-        return CollectResult(views, size, looked, found, notes, background)
+    size = None
+    looked = 0
+    for name, left, right in iter_folder_pairs(source):
+        looked += 1
+        size = (left.shape[1], left.shape[0])
+        if background is None:
+            background = (left, right)
+        v, why = detect_pair(name, left, right, spec, config.detect)
+        if v is None:
+            notes.append({"view": name, "used": False, "reason": why})
+        else:
+            views.append(v)
+    found = len(views)
+    views = _thin_views(views, size, config.max_frames, notes)
+    return CollectResult(views, size, looked, found, notes, background)
 
-    if not source.is_file():
-        raise InputError(f"{source}: not found")
-    n, size, fps = video_info(source)
+
+def _scan_video(source: Path, spec: BoardSpec, config: CalibConfig, n: int, size) -> tuple[list, list, list, int, tuple]:
+    """Frames of a side-by-side video with the board in both eyes by the quick detector.
+
+    Returns (frame indices, pose descriptors, sharpness, frames looked at, first pair as background).
+    A quick search on downscaled eyes; at full resolution again if that finds too few (small boards).
+    """
     stride = max(1, int(np.ceil(n / config.scan_frames))) if n > 0 else 1
-    # quick search on downscaled eyes; at full resolution again if that finds too few (small boards)
     widths = [config.scan_width_px] + ([size[0]] if size[0] > config.scan_width_px else [])
+    background = None
     for width in widths:
         cand_idx, cand_desc, cand_sharp = [], [], []
         looked = 0
@@ -364,6 +367,17 @@ def collect_views(source: Path, spec: BoardSpec, config: CalibConfig = CalibConf
                  stride, width, time.perf_counter() - t0, len(cand_idx))
         if len(cand_idx) >= config.min_views or looked == 0:
             break
+    return cand_idx, cand_desc, cand_sharp, looked, background
+
+
+def _collect_video(source: Path, spec: BoardSpec, config: CalibConfig) -> CollectResult:
+    """Board views of a side-by-side video: scan quickly, choose sharp and varied frames, detect them accurately."""
+    if not source.is_file():
+        raise InputError(f"{source}: not found")
+    notes: list[dict] = []
+    views: list[PairView] = []
+    n, size, fps = video_info(source)
+    cand_idx, cand_desc, cand_sharp, looked, background = _scan_video(source, spec, config, n, size)
     if looked == 0:
         raise InputError(f"{source}: no frames could be decoded")
     found = len(cand_idx)
@@ -376,20 +390,23 @@ def collect_views(source: Path, spec: BoardSpec, config: CalibConfig = CalibConf
         if i not in chosen:
             notes.append({"view": f"frame {i}", "used": False, "reason": "not selected (blurrier or similar to a chosen view)"})
     for i, left, right in iter_video_pairs(source, indices=chosen):
-        v, why = _detect_pair(f"frame {i}", left, right, spec, config.detect)
+        v, why = detect_pair(f"frame {i}", left, right, spec, config.detect)
         if v is None:
             notes.append({"view": f"frame {i}", "used": False, "reason": why + " (accurate detector)"})
         else:
             views.append(v)
         if len(views) == 1:
             background = (left, right)
-    if len(views) > config.max_frames:
-        desc = np.array([pose_descriptor(v.left.corners, size) for v in views])
-        keep = set(select_views(desc, np.array([v.sharpness for v in views]), config.max_frames, 0.0))
-        notes += [{"view": v.name, "used": False, "reason": "not selected (enough similar views)"}
-                  for k, v in enumerate(views) if k not in keep]
-        views = [v for k, v in enumerate(views) if k in keep]
+    views = _thin_views(views, size, config.max_frames, notes)
     return CollectResult(views, size, looked, found, notes, background)
+
+
+def collect_views(source: Path, spec: BoardSpec, config: CalibConfig = CalibConfig()) -> CollectResult:
+    """Detect the board in a folder of pairs or a side-by-side video, choosing video frames automatically."""
+    source = Path(source)
+    if source.is_dir():
+        return _collect_folder(source, spec, config)
+    return _collect_video(source, spec, config)
 
 
 # -- calibration ----------------------------------------------------------------------------------------

@@ -152,11 +152,11 @@ def _print_calibration(rep: dict, out: Path, report_path: Path, cov_path: Path) 
 
 
 def _sample_pairs(src: Path, n: int):
-    from calib.calibrate import IMAGE_SUFFIXES, _read_image, iter_folder_pairs, iter_video_pairs, video_info
+    from calib.calibrate import IMAGE_SUFFIXES, read_image, iter_folder_pairs, iter_video_pairs, video_info
     from stereo_recon.core.frames import split_side_by_side
 
     if src.is_file() and src.suffix.lower() in IMAGE_SUFFIXES:  # one side-by-side image
-        left, right = split_side_by_side(_read_image(src), str(src), check_aspect=False)
+        left, right = split_side_by_side(read_image(src), str(src), check_aspect=False)
         return [(src.name, left, right)], (left.shape[1], left.shape[0])
     if src.is_dir():
         pairs = list(iter_folder_pairs(src, max_pairs=n))
@@ -171,7 +171,7 @@ def _sample_pairs(src: Path, n: int):
 
 def run_calib_check(args: argparse.Namespace) -> int:
     from calib.boards import DetectConfig, parse_board
-    from calib.calibrate import PairView, _detect_pair, epipolar_errors
+    from calib.calibrate import PairView, detect_pair, epipolar_errors
     from calib.check import check_pairs
     from calib.io import parse_calib_arg
     from stereo_recon.core.errors import ConfigError, InputError
@@ -205,7 +205,7 @@ def run_calib_check(args: argparse.Namespace) -> int:
     if spec is not None:
         views: list[PairView] = []
         for name, left, right in pairs:
-            v, _ = _detect_pair(name, left, right, spec, DetectConfig())
+            v, _ = detect_pair(name, left, right, spec, DetectConfig())
             if v is not None:
                 views.append(v)
         if views:

@@ -56,20 +56,80 @@ def _robust_extremes(counts: np.ndarray, grid: np.ndarray, f: float) -> tuple[fl
     return float(lo), float(hi)
 
 
-def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0):
-    from scipy.stats import norm
-
-    dens = smooth_counts(counts, step, h)
-    # Wall peaks: the significant ones, plus weaker ones that still carry a wall's worth of
-    # points (a cab wider than the box shows as a smaller peak just outside the box's).
+def _wall_peaks(counts, grid, dens, h, step, cfg: DimensionConfig) -> np.ndarray:
+    """Positions (m) of the wall peaks: the significant ones, plus weaker ones that still carry a wall's
+    worth of points (a cab wider than the box shows as a smaller peak just outside the box's)."""
     pk = local_maxima(dens, cfg.peak_min_rel * 0.2)
     half = max(int(np.ceil(2 * h / step)), 1)
     cum = np.concatenate([[0.0], np.cumsum(counts)])
     mass = np.array([cum[min(i + half + 1, len(counts))] - cum[max(i - half, 0)] for i in pk]) / max(cum[-1], 1e-12)
     pk = pk[(dens[pk] >= cfg.peak_min_rel * dens.max()) | (mass >= cfg.wall_min_mass)] if len(pk) else pk
+    return np.array([refine_peak(grid, dens, int(i)) for i in pk])
+
+
+class _Shoulder:
+    """A wider part just outside a wall (a cab wider than the box, a flatbed's deck beside its load) by
+    less than the noise can separate shows as a shoulder: more points beyond the peak than the wall's own
+    scatter puts there. The wall's scatter is read off its outer flank (a weakly textured panel seen at a
+    slant scatters more than the ground's noise says); a tail within it is the wall's, not a shoulder.
+
+    counts, grid (m), dens: the width projection's histogram and density; h: bandwidth (m); noise: the
+    reconstruction's noise (m). Tails are judged beyond d = 2.5 x hypot(noise, h) from a wall.
+    """
+
+    def __init__(self, counts, grid, dens, h: float, noise: float):
+        self.grid, self.dens, self.h = grid, dens, h
+        self.s_eff = float(np.hypot(noise, h))
+        self.d = 2.5 * self.s_eff
+        self.cdf = np.cumsum(counts)
+        self.tot = self.cdf[-1]
+
+    def band_mass(self, a: float, b: float) -> float:
+        """Share of all points between a and b (m)."""
+        return float(np.interp(b, self.grid, self.cdf) - np.interp(a, self.grid, self.cdf)) / self.tot
+
+    def wall_tail(self, e: float, side: int) -> float:
+        """Share of all points the wall at e (m) puts beyond e + side*d, if its profile is Gaussian."""
+        from scipy.stats import norm
+
+        grid, dens, h = self.grid, self.dens, self.h
+        i = int(np.clip(np.searchsorted(grid, e), 0, len(grid) - 1))
+        j = i
+        while 0 <= j + side < len(dens) and dens[j] > 0.5 * dens[i]:
+            j += side
+        sigma = max(float(np.sqrt(max((abs(grid[j] - grid[i]) / 1.1774) ** 2 - h * h, 0.0))), self.s_eff)
+        wall = self.band_mass(e - 2 * sigma, e + 2 * sigma) / 0.954
+        return wall * float(norm.sf(self.d / sigma))
+
+    def edge(self, e: float, side: int) -> float:
+        """Outer edge of the shoulder beyond e (m), scanning outwards from e + side*d: its outermost
+        peak of at least half its height, else where its density falls to half its height (a
+        blurred step's true position)."""
+        grid, dens = self.grid, self.dens
+        i = int(np.clip(np.searchsorted(grid, e + side * self.d), 0, len(grid) - 1))
+        j_end = len(grid) - 1 if side > 0 else 0
+        seg = dens[i:j_end + 1] if side > 0 else dens[j_end:i + 1][::-1]
+        top = float(seg.max()) if len(seg) else 0.0
+        # A thin outer surface (a deck's edge face, a cab wall) is a peak: take it where it is.
+        mid_ = seg[1:-1]
+        pk_out = np.flatnonzero((mid_ >= seg[:-2]) & (mid_ > seg[2:]) & (mid_ >= 0.5 * top)) + 1
+        if len(pk_out):
+            return refine_peak(grid, dens, int(i + side * pk_out[-1]))
+        above = np.flatnonzero(seg >= 0.5 * top)
+        k = int(above[-1]) if len(above) else 0
+        j = i + side * k
+        # Interpolate the half-height crossing between j and the next bin outwards.
+        jn = int(np.clip(j + side, 0, len(grid) - 1))
+        a, b = float(dens[j]), float(dens[jn])
+        f = (a - 0.5 * top) / (a - b) if a > b else 0.0
+        return float(grid[j] + side * f * abs(grid[jn] - grid[j]))
+
+
+def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0):
+    dens = smooth_counts(counts, step, h)
+    pos = _wall_peaks(counts, grid, dens, h, step, cfg)
     lo, hi = _robust_extremes(counts, grid, cfg.extreme_fraction)
     extent = hi - lo
-    pos = np.array([refine_peak(grid, dens, int(i)) for i in pk])
     # Wall peaks are the outermost significant peaks on each side of the centre (Eq. 9 per
     # mode of the bimodal density). A fused cloud can carry a thin tail of stray points
     # outside one wall, so peaks are not required to sit next to the extremes.
@@ -82,59 +142,15 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
     core = q_hi - q_lo
     if len(left) and len(right) and right.max() - left.min() >= cfg.wall_min_share * core:
         e0, e1 = float(left.min()), float(right.max())
-        # A wider part just outside a wall (a cab wider than the box, a flatbed's deck beside its
-        # load) by less than the noise can separate shows as a shoulder: more points beyond the
-        # peak than the wall's own scatter puts there. The wall's scatter is read off its outer
-        # flank (a weakly textured panel seen at a slant scatters more than the ground's noise
-        # says); a tail within it is the wall's, not a shoulder.
-        s_eff = float(np.hypot(noise, h))
-        d = 2.5 * s_eff
-        cdf = np.cumsum(counts)
-        tot = cdf[-1]
-
-        def band_mass(a: float, b: float) -> float:
-            return float(np.interp(b, grid, cdf) - np.interp(a, grid, cdf)) / tot
-
-        def wall_tail(e: float, side: int) -> float:
-            """Share of all points the wall at e (m) puts beyond e + side*d, if its profile is Gaussian."""
-            i = int(np.clip(np.searchsorted(grid, e), 0, len(grid) - 1))
-            j = i
-            while 0 <= j + side < len(dens) and dens[j] > 0.5 * dens[i]:
-                j += side
-            sigma = max(float(np.sqrt(max((abs(grid[j] - grid[i]) / 1.1774) ** 2 - h * h, 0.0))), s_eff)
-            wall = band_mass(e - 2 * sigma, e + 2 * sigma) / 0.954
-            return wall * float(norm.sf(d / sigma))
-
+        sh = _Shoulder(counts, grid, dens, h, noise)
+        d = sh.d
         rule = "kde_two_peaks"
-        out_hi, out_lo = band_mass(e1 + d, hi), band_mass(lo, e0 - d)
-
-        def shoulder_edge(e: float, side: int) -> float:
-            """Outer edge of the shoulder beyond e (m), scanning outwards from e + side*d: its outermost
-            peak of at least half its height, else where its density falls to half its height (a
-            blurred step's true position)."""
-            i = int(np.clip(np.searchsorted(grid, e + side * d), 0, len(grid) - 1))
-            j_end = len(grid) - 1 if side > 0 else 0
-            seg = dens[i:j_end + 1] if side > 0 else dens[j_end:i + 1][::-1]
-            top = float(seg.max()) if len(seg) else 0.0
-            # A thin outer surface (a deck's edge face, a cab wall) is a peak: take it where it is.
-            mid_ = seg[1:-1]
-            pk_out = np.flatnonzero((mid_ >= seg[:-2]) & (mid_ > seg[2:]) & (mid_ >= 0.5 * top)) + 1
-            if len(pk_out):
-                return refine_peak(grid, dens, int(i + side * pk_out[-1]))
-            above = np.flatnonzero(seg >= 0.5 * top)
-            k = int(above[-1]) if len(above) else 0
-            j = i + side * k
-            # Interpolate the half-height crossing between j and the next bin outwards.
-            jn = int(np.clip(j + side, 0, len(grid) - 1))
-            a, b = float(dens[j]), float(dens[jn])
-            f = (a - 0.5 * top) / (a - b) if a > b else 0.0
-            return float(grid[j] + side * f * abs(grid[jn] - grid[j]))
-
-        if out_hi >= cfg.wall_min_mass and hi > e1 + d and out_hi > cfg.shoulder_excess * wall_tail(e1, +1):
-            e1 = max(e1, shoulder_edge(e1, +1))
+        out_hi, out_lo = sh.band_mass(e1 + d, hi), sh.band_mass(lo, e0 - d)
+        if out_hi >= cfg.wall_min_mass and hi > e1 + d and out_hi > cfg.shoulder_excess * sh.wall_tail(e1, +1):
+            e1 = max(e1, sh.edge(e1, +1))
             rule = "kde_peaks_plus_outer_shoulder"
-        if out_lo >= cfg.wall_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * wall_tail(e0, -1):
-            e0 = min(e0, shoulder_edge(e0, -1))
+        if out_lo >= cfg.wall_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * sh.wall_tail(e0, -1):
+            e0 = min(e0, sh.edge(e0, -1))
             rule = "kde_peaks_plus_outer_shoulder"
         return e1 - e0, rule, (e0, e1), dens
     if len(right) and right.max() - lo >= cfg.wall_min_share * core:
@@ -225,6 +241,72 @@ def refine_heading(xy: np.ndarray, u1: np.ndarray, resolution_m: float, max_turn
     return u / np.linalg.norm(u), float(np.degrees(best))
 
 
+# Fallback edges per rule: an edge taken from an extreme is pushed outwards by the noise (uncertainty).
+_EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "one_peak_plus_extreme": 1,
+                  "rear_peak_to_front_peak": 0, "rear_peak_to_front_extreme": 1, "robust_extent": 2}
+
+
+def _ground_axes(xy: np.ndarray, resolution_m: float):
+    """(c0, u_pca, u1, u2, turn_deg): footprint centre (m), PCA length axis, refined length and width axes."""
+    # PCA by SVD of the ground-projected points: u1 = length, u2 = width.
+    c0 = xy.mean(axis=0)
+    stride = max(1, len(xy) // 200_000)
+    _, _, vt = np.linalg.svd(xy[::stride] - c0, full_matrices=False)
+    u_pca = vt[0]
+    u1, turn_deg = refine_heading(xy[::stride] - c0, u_pca, resolution_m)
+    u2 = np.array([-u1[1], u1[0]])
+    return c0, u_pca, u1, u2, turn_deg
+
+
+def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, config: DimensionConfig, rng) -> dict:
+    """Length or width (name) from the points' projection x (m) on its axis: Eq. 8 bandwidth, the rule,
+    and its Poisson-bootstrap spread. res: point spacing (m); rng: numpy Generator (drawn in order)."""
+    span = float(x.max() - x.min())
+    step = max(span / config.grid_bins, res / 16)
+    h_max = span / 8
+    pad = 4 * h_max
+    lo = float(x.min()) - pad
+    n_bins = int(np.ceil((span + 2 * pad) / step)) + 2
+    counts = linear_binning(x, lo, step, n_bins)
+    grid = lo + step * np.arange(n_bins)
+    # Eq. 8 bandwidth; not below half the point spacing (finer has no information).
+    h_floor = max(res / 2, 2 * step)
+    h, _ = lscv_bandwidth(counts, step, h_floor, h_max)
+    bw_rule = "lscv_eq8" if h > h_floor * 1.0001 else "lscv_eq8_at_floor_half_spacing"
+    rule_fn = (lambda *a: _width_rule(*a, noise=noise_m)) if name == "width" else _length_rule
+    r = rule_fn(counts, grid, h, step, config)
+    reps = []
+    for _ in range(config.bootstrap):
+        rc = rng.poisson(counts).astype(np.float64)
+        reps.append(rule_fn(rc, grid, h, step, config)[0])
+    return {"value": r[0], "rule": r[1], "edge": r[2], "density": {"grid_m": grid, "density": r[3]},
+            "bandwidth": h, "bandwidth_rule": bw_rule, "boot": float(np.std(reps)) if reps else 0.0,
+            "rear_end": r[4] if name == "length" else None}
+
+
+def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: float, roof_support: float,
+                   hz: float) -> tuple[dict, list[str]]:
+    """Standard uncertainties (m) per dimension and the warnings: bootstrap spread, plus half the spacing at
+    each edge, plus the noise for an edge taken from an extreme (extremes are pushed outwards by noise)."""
+    unc = {}
+    for name in ("length", "width"):
+        n_extreme = _EXTREME_EDGES[rules[name]]
+        sys2 = 2 * (res / 2) ** 2 + n_extreme * (2 * noise_m) ** 2 + (bw[name] / 4) ** 2
+        unc[name] = float(np.sqrt(boots[name] ** 2 + sys2))
+    unc["height"] = float(np.sqrt(boots["height"] ** 2 + (res / 2) ** 2
+                                  + (noise_m if rules["height"] != "roof_peak" else 0.0) ** 2))
+    warnings = []
+    if roof_support < 0.10:
+        # A barely seen roof: its peak sits on the smoothed top edge of the walls, which pulls
+        # it down by up to a few bandwidths; say so and widen the uncertainty accordingly.
+        unc["height"] = float(np.hypot(unc["height"], 3 * hz))
+        warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
+    for name in ("length", "width"):
+        if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder"):
+            warnings.append(f"{name} from the fallback rule '{rules[name]}' (the paper's peak rule did not apply)")
+    return unc, warnings
+
+
 def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.0, config: DimensionConfig = DimensionConfig(), rng=0) -> dict:
     """Length, width, height of a truck from its points in the ground frame.
 
@@ -237,52 +319,24 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     xyz = np.asarray(xyz, dtype=np.float64)
     xy = xyz[:, :2]
     z = xyz[:, 2]
-    # PCA by SVD of the ground-projected points: u1 = length, u2 = width.
-    c0 = xy.mean(axis=0)
-    stride = max(1, len(xy) // 200_000)
-    _, _, vt = np.linalg.svd(xy[::stride] - c0, full_matrices=False)
-    u_pca = vt[0]
-    u1, turn_deg = refine_heading(xy[::stride] - c0, u_pca, resolution_m)
-    u2 = np.array([-u1[1], u1[0]])
+    c0, u_pca, u1, u2, turn_deg = _ground_axes(xy, resolution_m)
     a = (xy - c0) @ u1
     b = (xy - c0) @ u2
 
     out: dict = {"axes_xy": {"length": u1, "width": u2, "pca_length": u_pca}, "origin_xy_m": c0, "heading_refinement_deg": turn_deg}
     res = max(float(resolution_m), 1e-9)
-    dens_out = {}
-    bw = {}
-    rules = {}
-    ends = {}
-    boots = {}
-    bw_rules = {}
+    dens_out, bw, rules, ends, boots, bw_rules = {}, {}, {}, {}, {}, {}
     for name, x in (("width", b), ("length", a)):
-        span = float(x.max() - x.min())
-        step = max(span / config.grid_bins, res / 16)
-        h_max = span / 8
-        pad = 4 * h_max
-        lo = float(x.min()) - pad
-        n_bins = int(np.ceil((span + 2 * pad) / step)) + 2
-        counts = linear_binning(x, lo, step, n_bins)
-        grid = lo + step * np.arange(n_bins)
-        # Eq. 8 bandwidth; not below half the point spacing (finer has no information).
-        h_floor = max(res / 2, 2 * step)
-        h, _ = lscv_bandwidth(counts, step, h_floor, h_max)
-        bw_rules[name] = "lscv_eq8" if h > h_floor * 1.0001 else "lscv_eq8_at_floor_half_spacing"
-        rule_fn = (lambda *a: _width_rule(*a, noise=noise_m)) if name == "width" else _length_rule
-        r = rule_fn(counts, grid, h, step, config)
-        value, rule, edge, dens = r[0], r[1], r[2], r[3]
-        reps = []
-        for _ in range(config.bootstrap):
-            rc = rng.poisson(counts).astype(np.float64)
-            reps.append(rule_fn(rc, grid, h, step, config)[0])
-        boots[name] = float(np.std(reps)) if reps else 0.0
-        out[f"{name}_m"] = value
-        rules[name] = rule
-        bw[name] = h
-        ends[name] = edge
-        dens_out[name] = {"grid_m": grid, "density": dens}
+        d = _projection_dimension(name, x, res, noise_m, config, rng)
+        bw_rules[name] = d["bandwidth_rule"]
+        boots[name] = d["boot"]
+        out[f"{name}_m"] = d["value"]
+        rules[name] = d["rule"]
+        bw[name] = d["bandwidth"]
+        ends[name] = d["edge"]
+        dens_out[name] = d["density"]
         if name == "length":
-            out["rear_end"] = r[4]
+            out["rear_end"] = d["rear_end"]
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -295,24 +349,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     bw["height"] = hz
     bw_rules["height"] = "max(ground_rms, half_spacing)"
     dens_out["height"] = {"grid_m": hgrid, "density": hdens}
-    # Uncertainty: bootstrap spread, plus half the spacing at each edge, plus the noise for
-    # an edge taken from an extreme (extremes are pushed outwards by noise).
-    unc = {}
-    for name in ("length", "width"):
-        n_extreme = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "one_peak_plus_extreme": 1, "rear_peak_to_front_peak": 0,
-                     "rear_peak_to_front_extreme": 1, "robust_extent": 2}[rules[name]]
-        sys2 = 2 * (res / 2) ** 2 + n_extreme * (2 * noise_m) ** 2 + (bw[name] / 4) ** 2
-        unc[name] = float(np.sqrt(boots[name] ** 2 + sys2))
-    unc["height"] = float(np.sqrt(boots["height"] ** 2 + (res / 2) ** 2 + (noise_m if hrule != "roof_peak" else 0.0) ** 2))
-    warnings = []
-    if roof_support < 0.10:
-        # A barely seen roof: its peak sits on the smoothed top edge of the walls, which pulls
-        # it down by up to a few bandwidths; say so and widen the uncertainty accordingly.
-        unc["height"] = float(np.hypot(unc["height"], 3 * hz))
-        warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
-    for name in ("length", "width"):
-        if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder"):
-            warnings.append(f"{name} from the fallback rule '{rules[name]}' (the paper's peak rule did not apply)")
+    unc, warnings = _uncertainties(rules, bw, boots, res, noise_m, roof_support, hz)
     out["warnings"] = warnings
     out["roof_support"] = roof_support
     out["uncertainty_m"] = unc

@@ -72,6 +72,276 @@ _FAR_HALF = _BATCHES[2] + _BATCHES[3]
 _FAR_BOTH = _FAR_HALF + [(-a, -b, -c) for a, b, c in _FAR_HALF]
 # Components of at most this many cells after the touching pass take the shortcut pass.
 _SMALL_COMPONENT_CELLS = 8
+_ONE = np.uint64(1)
+
+
+class _Lap:
+    """Debug log of the CPU time each step of ``fof_clusters`` took."""
+
+    def __init__(self) -> None:
+        self.t = time.process_time()
+
+    def __call__(self, what: str) -> None:
+        if log.isEnabledFor(logging.DEBUG):
+            t = time.process_time()
+            log.debug("fof %s: %.1f ms cpu", what, 1000 * (t - self.t))
+            self.t = t
+
+
+class _Cells:
+    """The occupied grid cells, points sorted by cell: order (N,) point index by sorted position; starts,
+    counts (ncell,) each cell's run in that order; cell_keys (ncell,) linear keys in a padded grid of
+    ``dims`` cells; cell_of_sorted (N,) cell of each sorted point; first_xyz (ncell, 3) one point per cell (m)."""
+
+    def __init__(self, p: np.ndarray, q: list[np.ndarray], size: np.ndarray):
+        n = len(p)
+        # The longest axis becomes the bit axis of the occupancy words (fewest words).
+        perm = np.argsort(size, kind="stable")
+        self.dims = dims = size[perm] + 4  # +2 padding each side
+        self.n_words = _grid_words(size)
+        # +2: offsets never go below 0.
+        key = q[perm[0]] + 2
+        for ax in (1, 2):
+            key *= dims[ax]
+            key += q[perm[ax]] + 2
+        # Sort (key, index) packed in one int64: a plain sort is several times faster than argsort.
+        key *= n
+        key += np.arange(n, dtype=np.int64)
+        packed = key
+        del key
+        packed.sort()
+        sk = packed // n
+        self.order = packed - sk * n
+        del packed
+        new_cell = np.empty(n, dtype=bool)
+        new_cell[0] = True
+        np.not_equal(sk[1:], sk[:-1], out=new_cell[1:])
+        self.starts = np.flatnonzero(new_cell)
+        self.ncell = len(self.starts)
+        self.cell_of_sorted = np.cumsum(new_cell, dtype=np.int64) - 1
+        del new_cell
+        self.cell_keys = sk[self.starts]
+        self.counts = np.diff(np.append(self.starts, n))
+        self.first_xyz = p[self.order[self.starts]]   # one point per cell, for the cheap first test
+
+
+class _Occupancy:
+    """Occupancy bitmap of the cells: one uint64 word per 64 cells along the bit axis, plus the number of
+    occupied cells before each word, which is the sorted cell index of the word's first cell.
+    ``lookup`` finds each cell's occupied neighbour at an offset by a gather and a popcount."""
+
+    def __init__(self, cells: _Cells):
+        dims, cell_keys = cells.dims, cells.cell_keys
+        self.cell_keys = cell_keys
+        self.W = W = (dims[2] + 63) // 64
+        qab = cell_keys // dims[2]
+        self.qc = qc = cell_keys - qab * dims[2]
+        self.word_base = word_base = qab * W
+        word_of_cell = word_base + (qc >> 6)
+        bit_of_cell = (qc & 63).astype(np.uint64)
+        self.words = words = np.zeros(cells.n_words, dtype=np.uint64)
+        wstart = np.flatnonzero(np.r_[True, word_of_cell[1:] != word_of_cell[:-1]])
+        words[word_of_cell[wstart]] = np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit_of_cell), wstart)
+        self.prefix = np.zeros(cells.n_words, dtype=np.int64)
+        self.prefix[word_of_cell[wstart]] = wstart
+        # Empty words need no prefix: a lookup that lands in one finds its bit unset.
+        # Per cell: its word and the mask selecting its bit, so that offsets staying on the same bit
+        # (dc = 0) cost one gather and a popcount.
+        self.word_of_cell = word_of_cell
+        self.bit_sel = np.left_shift(_ONE, (qc & 63).astype(np.uint64))
+        self.base_lin = dims[1] * W
+        self._shifted_cache: dict = {}
+
+    def lookup(self, sel: np.ndarray | None, off) -> tuple[np.ndarray, np.ndarray]:
+        """(cells, neighbours): occupied neighbour of each cell (or of cells[sel]) at offset off."""
+        da, db, dc = off
+        if sel is None and da == 0 and db == 0:
+            # Along the bit axis the neighbour, if any, is among the next cells in sorted order.
+            cells_, nbs_ = [], []
+            for k in range(1, dc + 1):
+                i = np.flatnonzero(self.cell_keys[k:] == self.cell_keys[:-k] + dc)
+                cells_.append(i)
+                nbs_.append(i + k)
+            return np.concatenate(cells_), np.concatenate(nbs_)
+        if sel is None:
+            # Every cell: the neighbour's bit is this cell's bit shifted by dc within the same
+            # word, except for the few cells at a word's edge, which take the general path.
+            bs, cross = self._shifted(dc)
+            w = self.word_of_cell + (da * self.base_lin + db * self.W)
+            bits = self.words[w]
+            occ = (bits & bs) != 0
+            if cross is not None:
+                occ[cross] = False
+            cells = np.flatnonzero(occ)
+            nb = self.prefix[w[cells]] + np.bitwise_count(bits[cells] & (bs[cells] - _ONE))
+            if cross is not None and len(cross):
+                c2, n2 = self._general(cross, da, db, dc)
+                cells = np.concatenate([cells, c2])
+                nb = np.concatenate([nb.astype(np.int64), n2])
+            return cells, nb.astype(np.int64)
+        return self._general(sel, da, db, dc)
+
+    def _shifted(self, dc: int):
+        """(each cell's bit shifted by dc along the bit axis, the cells whose shift leaves their word), cached."""
+        if dc not in self._shifted_cache:
+            if dc == 0:
+                self._shifted_cache[dc] = (self.bit_sel, None)
+            else:
+                bit = self.qc & 63
+                bs = (np.left_shift(self.bit_sel, np.uint64(dc)) if dc > 0
+                      else np.right_shift(self.bit_sel, np.uint64(-dc)))
+                self._shifted_cache[dc] = (bs, np.flatnonzero((bit + dc < 0) | (bit + dc > 63)))
+        return self._shifted_cache[dc]
+
+    def _general(self, sel: np.ndarray, da: int, db: int, dc: int) -> tuple[np.ndarray, np.ndarray]:
+        """(cells, neighbours) at offset (da, db, dc) for the cells sel, by their word and bit one by one."""
+        zc = self.qc[sel] + dc
+        w = self.word_base[sel] + (da * self.base_lin + db * self.W) + (zc >> 6)
+        bits = self.words[w]
+        b = (zc & 63).astype(np.uint64)
+        occ = ((bits >> b) & _ONE).astype(bool)
+        cells = sel[occ]
+        bits = bits[occ]
+        b = b[occ]
+        nb = self.prefix[w[occ]] + np.bitwise_count(bits & ((_ONE << b) - _ONE))
+        return cells, nb.astype(np.int64)
+
+
+class _Linker:
+    """Components of the cell graph: candidate cell pairs are linked when any of their points are friends.
+
+    comp (ncell,): component of each cell; links found by ``link`` are merged by ``refresh``.
+    """
+
+    def __init__(self, p: np.ndarray, cells: _Cells, occupancy: _Occupancy, eps2: float, inclusive: bool):
+        self.p, self.cells, self.occ, self.eps2, self.inclusive = p, cells, occupancy, eps2, inclusive
+        self.comp = np.arange(cells.ncell, dtype=np.int64)
+        self.edges_a: list[np.ndarray] = []
+        self.edges_b: list[np.ndarray] = []
+
+    def first_points_friends(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Cheap check on the first point of each cell of the pairs (a, b)."""
+        d = self.cells.first_xyz[a] - self.cells.first_xyz[b]
+        d2 = np.einsum("ij,ij->i", d, d)
+        return d2 <= self.eps2 if self.inclusive else d2 < self.eps2
+
+    def any_friends(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Exhaustive check over the point pairs of each cell pair (a, b)."""
+        c = self.cells
+        return _any_pair_within(self.p, c.order, c.starts, c.counts, a, b, self.eps2, self.inclusive)
+
+    def refresh(self) -> None:
+        """Merge the components joined by the edges found since the last refresh."""
+        if not self.edges_a:
+            return
+        comp = self.comp
+        ea = comp[np.concatenate(self.edges_a)]
+        eb = comp[np.concatenate(self.edges_b)]
+        self.edges_a, self.edges_b = [], []
+        if len(ea) == 0:
+            return
+        k = int(comp.max()) + 1
+        g = coo_matrix((np.ones(len(ea), dtype=np.int8), (ea, eb)), shape=(k, k)).tocsr()
+        self.comp = connected_components(g, directed=True, connection="weak")[1].astype(np.int64)[comp]
+
+    def link(self, sel: np.ndarray | None, offsets) -> None:
+        """Find the links of the cells (all, or ``sel``) to their neighbours at ``offsets`` in other components."""
+        for off in offsets:
+            a, b = self.occ.lookup(sel, off)
+            if len(a) == 0:
+                continue
+            diff = self.comp[a] != self.comp[b]
+            a, b = a[diff], b[diff]
+            if len(a) == 0:
+                continue
+            hit = self.first_points_friends(a, b)
+            self.edges_a.append(a[hit])
+            self.edges_b.append(b[hit])
+            a, b = a[~hit], b[~hit]
+            if len(a) == 0:
+                continue
+            linked = self.any_friends(a, b)
+            self.edges_a.append(a[linked])
+            self.edges_b.append(b[linked])
+
+    def link_runs(self) -> None:
+        """Faces along the bit axis: consecutive linked cells form runs, labelled by a cumsum (no graph needed)."""
+        a, b = self.occ.lookup(None, (0, 0, 1))
+        hit = self.first_points_friends(a, b)
+        rest = ~hit
+        if rest.any():
+            hit[rest] = self.any_friends(a[rest], b[rest])
+        joined = np.zeros(self.cells.ncell, dtype=bool)
+        joined[b[hit]] = True          # b = a + 1 in sorted order: joined to its predecessor
+        self.comp = np.cumsum(~joined) - 1
+
+
+def _link_cells(p: np.ndarray, cells: _Cells, eps2: float, inclusive: bool, lap: _Lap) -> np.ndarray:
+    """Component (ncell,) of each occupied cell: the three linking passes over the occupancy bitmap."""
+    linker = _Linker(p, cells, _Occupancy(cells), eps2, inclusive)
+    # Pass 1: cells sharing a face, then the other touching cells (every cell); the refresh
+    # between them lets most of the second batch be skipped as already joined.
+    lap("occupancy bitmap")
+    linker.link_runs()  # the other two face directions then join runs
+    linker.link(None, [o for o in _BATCHES[0] if o != (0, 0, 1)])
+    linker.refresh()
+    lap("faces")
+    linker.link(None, _BATCHES[1])
+    linker.refresh()
+    lap("other touching")
+    # Pass 2 (a shortcut, adds only true links): cells of small components look in every far
+    # direction, which absorbs most fragments into their surface's component.
+    comp = linker.comp
+    csize = np.bincount(comp, minlength=cells.ncell)
+    small = np.flatnonzero(csize[comp] <= _SMALL_COMPONENT_CELLS)
+    if len(small):
+        linker.link(small, _FAR_BOTH)
+        linker.refresh()
+    # Pass 3 (the exact sweep): every far half offset from each cell that may still have a
+    # friend in another component.
+    lap(f"small components ({len(small)} cells)")
+    sel = _active_cells(cells.cell_keys, cells.dims, linker.comp)
+    lap(f"active cells ({len(sel)} of {cells.ncell})")
+    if len(sel):
+        linker.link(sel, _FAR_HALF)
+        linker.refresh()
+    lap("far offsets")
+    return linker.comp
+
+
+def _cell_indices(p: np.ndarray, eps_m: float, allow_split: bool, inclusive: bool, lap: _Lap):
+    """Integer cell coordinates of the points, or the components by another path when the grid cannot be built.
+
+    Returns ("grid", q, size) with q three (N,) int64 arrays and size (3,) cells per axis, or
+    ("components", comp) when far-flung points are clustered separately or the kd-tree path is taken.
+    """
+    cell = float(eps_m) / np.sqrt(3.0) * _CELL_SHRINK
+    # Per-column reductions: numpy's axis-0 reduction of an (N, 3) array is several times slower.
+    lo = np.array([p[:, i].min() for i in range(3)])
+    ext = (np.array([p[:, i].max() for i in range(3)]) - lo) / cell
+    if np.any(ext > 1.0e12):
+        log.debug("fof: absurd extent, using the kd-tree path")
+        return ("components", _scipy_components(p, eps_m, inclusive))
+    # Cell index per point and axis; (p - lo) >= 0, so truncation is floor.
+    inv = 1.0 / cell
+    q = [((p[:, ax] - lo[ax]) * inv).astype(np.int64) for ax in range(3)]
+    size = np.array([int(qa.max()) + 1 for qa in q])
+    n = len(p)
+    if not _grid_ok(size, n) and allow_split:
+        comp_ = _split_far_points(p, eps_m, inclusive)
+        if comp_ is not None:
+            return ("components", comp_)
+    if not _grid_ok(size, n):
+        # Far-flung points (sky noise, a distant building) would make the grid huge: squeeze
+        # every empty stretch of 3 or more cells to 3. Cells 3 apart can never hold friends
+        # (2 cells > ε), and nearer ones keep their exact offsets, so the partition is unchanged.
+        for ax in range(3):
+            q[ax], size[ax] = _squeeze_axis(q[ax])
+        lap("squeezed empty stretches")
+        if not _grid_ok(size, n):
+            log.debug("fof: occupied grid too large even squeezed, using the kd-tree path")
+            return ("components", _scipy_components(p, eps_m, inclusive))
+    return ("grid", q, size)
 
 
 def fof_clusters(points: np.ndarray, eps_m: float, min_size: int = 2, inclusive: bool = False, *,
@@ -92,236 +362,22 @@ def fof_clusters(points: np.ndarray, eps_m: float, min_size: int = 2, inclusive:
     if not (eps_m > 0 and np.isfinite(eps_m)):
         raise ValueError(f"eps_m must be a positive finite number, got {eps_m}")
     eps2 = float(eps_m) * float(eps_m)
-    _t = [time.process_time()]
-
-    def lap(what: str) -> None:
-        if log.isEnabledFor(logging.DEBUG):
-            t = time.process_time()
-            log.debug("fof %s: %.1f ms cpu", what, 1000 * (t - _t[0]))
-            _t[0] = t
-
-    cell = float(eps_m) / np.sqrt(3.0) * _CELL_SHRINK
-
-    # Per-column reductions: numpy's axis-0 reduction of an (N, 3) array is several times slower.
-    lo = np.array([p[:, i].min() for i in range(3)])
-    ext = (np.array([p[:, i].max() for i in range(3)]) - lo) / cell
-    def fallback() -> np.ndarray:
-        comp_ = _scipy_components(p, eps_m, inclusive)
-        return comp_ if _components else _relabel(comp_, np.ones(n), min_size)
-
-    if np.any(ext > 1.0e12):
-        log.debug("fof: absurd extent, using the kd-tree path")
-        return fallback()
-    # Cell index per point and axis; (p - lo) >= 0, so truncation is floor.
-    inv = 1.0 / cell
-    q = [((p[:, ax] - lo[ax]) * inv).astype(np.int64) for ax in range(3)]
-    size = np.array([int(qa.max()) + 1 for qa in q])
-    if not _grid_ok(size, n) and _allow_split:
-        comp_ = _split_far_points(p, eps_m, inclusive)
-        if comp_ is not None:
-            return comp_ if _components else _relabel(comp_, np.ones(n), min_size)
-    if not _grid_ok(size, n):
-        # Far-flung points (sky noise, a distant building) would make the grid huge: squeeze
-        # every empty stretch of 3 or more cells to 3. Cells 3 apart can never hold friends
-        # (2 cells > ε), and nearer ones keep their exact offsets, so the partition is unchanged.
-        for ax in range(3):
-            q[ax], size[ax] = _squeeze_axis(q[ax])
-        lap("squeezed empty stretches")
-        if not _grid_ok(size, n):
-            log.debug("fof: occupied grid too large even squeezed, using the kd-tree path")
-            return fallback()
-    # The longest axis becomes the bit axis of the occupancy words (fewest words).
-    perm = np.argsort(size, kind="stable")
-    dims = size[perm] + 4  # +2 padding each side
-    n_words = _grid_words(size)
-    # +2: offsets never go below 0.
-    key = q[perm[0]] + 2
-    for ax in (1, 2):
-        key *= dims[ax]
-        key += q[perm[ax]] + 2
-    del q
-    # Sort (key, index) packed in one int64: a plain sort is several times faster than argsort.
-    key *= n
-    key += np.arange(n, dtype=np.int64)
-    packed = key
-    del key
-    packed.sort()
-    sk = packed // n
-    order = packed - sk * n
-    del packed
-    new_cell = np.empty(n, dtype=bool)
-    new_cell[0] = True
-    np.not_equal(sk[1:], sk[:-1], out=new_cell[1:])
-    starts = np.flatnonzero(new_cell)
-    ncell = len(starts)
-    cell_of_sorted = np.cumsum(new_cell, dtype=np.int64) - 1
-    del new_cell
-    cell_keys = sk[starts]
-    del sk
-    counts = np.diff(np.append(starts, n))
-    first_xyz = p[order[starts]]   # one point per cell, for the cheap first test
+    lap = _Lap()
+    grid = _cell_indices(p, eps_m, _allow_split, inclusive, lap)
+    if grid[0] == "components":
+        return grid[1] if _components else _relabel(grid[1], np.ones(n), min_size)
+    cells = _Cells(p, grid[1], grid[2])
+    del grid
     lap("binning and sort")
-
-    # Occupancy bitmap: one uint64 word per 64 cells along the bit axis, plus the number of
-    # occupied cells before each word, which is the sorted cell index of the word's first cell.
-    W = (dims[2] + 63) // 64
-    qab = cell_keys // dims[2]
-    qc = cell_keys - qab * dims[2]
-    word_base = qab * W
-    word_of_cell = word_base + (qc >> 6)
-    bit_of_cell = (qc & 63).astype(np.uint64)
-    words = np.zeros(n_words, dtype=np.uint64)
-    wstart = np.flatnonzero(np.r_[True, word_of_cell[1:] != word_of_cell[:-1]])
-    words[word_of_cell[wstart]] = np.bitwise_or.reduceat(np.left_shift(np.uint64(1), bit_of_cell), wstart)
-    prefix = np.zeros(n_words, dtype=np.int64)
-    prefix[word_of_cell[wstart]] = wstart
-    # Empty words need no prefix: a lookup that lands in one finds its bit unset.
-    one = np.uint64(1)
-
-    # Per cell: its word, its bit and the masks selecting that bit / the bits below it, so that
-    # offsets staying on the same bit (dc = 0) cost one gather and a popcount.
-    word_of_cell = word_base + (qc >> 6)
-    bit_sel = np.left_shift(one, (qc & 63).astype(np.uint64))
-    below = bit_sel - one
-    base_lin = dims[1] * W
-
-    def lookup(sel: np.ndarray | None, off) -> tuple[np.ndarray, np.ndarray]:
-        """(cells, neighbours): occupied neighbour of each cell (or of cells[sel]) at offset off."""
-        da, db, dc = off
-        if sel is None and da == 0 and db == 0:
-            # Along the bit axis the neighbour, if any, is among the next cells in sorted order.
-            cells_, nbs_ = [], []
-            for k in range(1, dc + 1):
-                i = np.flatnonzero(cell_keys[k:] == cell_keys[:-k] + dc)
-                cells_.append(i)
-                nbs_.append(i + k)
-            return np.concatenate(cells_), np.concatenate(nbs_)
-        if sel is None:
-            # Every cell: the neighbour's bit is this cell's bit shifted by dc within the same
-            # word, except for the few cells at a word's edge, which take the general path.
-            bs, cross = _shifted(dc)
-            w = word_of_cell + (da * base_lin + db * W)
-            bits = words[w]
-            occ = (bits & bs) != 0
-            if cross is not None:
-                occ[cross] = False
-            cells = np.flatnonzero(occ)
-            nb = prefix[w[cells]] + np.bitwise_count(bits[cells] & (bs[cells] - one))
-            if cross is not None and len(cross):
-                c2, n2 = _general(cross, da, db, dc)
-                cells = np.concatenate([cells, c2])
-                nb = np.concatenate([nb.astype(np.int64), n2])
-            return cells, nb.astype(np.int64)
-        return _general(sel, da, db, dc)
-
-    shifted_cache: dict = {}
-
-    def _shifted(dc: int):
-        if dc not in shifted_cache:
-            if dc == 0:
-                shifted_cache[dc] = (bit_sel, None)
-            else:
-                bit = qc & 63
-                bs = np.left_shift(bit_sel, np.uint64(dc)) if dc > 0 else np.right_shift(bit_sel, np.uint64(-dc))
-                shifted_cache[dc] = (bs, np.flatnonzero((bit + dc < 0) | (bit + dc > 63)))
-        return shifted_cache[dc]
-
-    def _general(sel: np.ndarray, da: int, db: int, dc: int) -> tuple[np.ndarray, np.ndarray]:
-        zc = qc[sel] + dc
-        w = word_base[sel] + (da * base_lin + db * W) + (zc >> 6)
-        bits = words[w]
-        b = (zc & 63).astype(np.uint64)
-        occ = ((bits >> b) & one).astype(bool)
-        cells = sel[occ]
-        bits = bits[occ]
-        b = b[occ]
-        nb = prefix[w[occ]] + np.bitwise_count(bits & ((one << b) - one))
-        return cells, nb.astype(np.int64)
-
-    comp = np.arange(ncell, dtype=np.int64)
-    edges_a: list[np.ndarray] = []
-    edges_b: list[np.ndarray] = []
-    def refresh(comp: np.ndarray) -> np.ndarray:
-        """Merge the components joined by the edges found since the last refresh."""
-        nonlocal edges_a, edges_b
-        if not edges_a:
-            return comp
-        ea = comp[np.concatenate(edges_a)]
-        eb = comp[np.concatenate(edges_b)]
-        edges_a, edges_b = [], []
-        if len(ea) == 0:
-            return comp
-        k = int(comp.max()) + 1
-        g = coo_matrix((np.ones(len(ea), dtype=np.int8), (ea, eb)), shape=(k, k)).tocsr()
-        return connected_components(g, directed=True, connection="weak")[1].astype(np.int64)[comp]
-
-    def link(sel: np.ndarray | None, offsets) -> None:
-        for off in offsets:
-            a, b = lookup(sel, off)
-            if len(a) == 0:
-                continue
-            diff = comp[a] != comp[b]
-            a, b = a[diff], b[diff]
-            if len(a) == 0:
-                continue
-            # Cheap check on the first point of each cell.
-            d = first_xyz[a] - first_xyz[b]
-            d2 = np.einsum("ij,ij->i", d, d)
-            hit = d2 <= eps2 if inclusive else d2 < eps2
-            edges_a.append(a[hit])
-            edges_b.append(b[hit])
-            a, b = a[~hit], b[~hit]
-            if len(a) == 0:
-                continue
-            linked = _any_pair_within(p, order, starts, counts, a, b, eps2, inclusive)
-            edges_a.append(a[linked])
-            edges_b.append(b[linked])
-
-    # Pass 1: cells sharing a face, then the other touching cells (every cell); the refresh
-    # between them lets most of the second batch be skipped as already joined.
-    lap("occupancy bitmap")
-    # Faces along the bit axis first: consecutive linked cells form runs, labelled by a cumsum
-    # (no graph needed); the other two face directions then join runs.
-    a, b = lookup(None, (0, 0, 1))
-    d = first_xyz[a] - first_xyz[b]
-    d2 = np.einsum("ij,ij->i", d, d)
-    hit = d2 <= eps2 if inclusive else d2 < eps2
-    rest = ~hit
-    if rest.any():
-        hit[rest] = _any_pair_within(p, order, starts, counts, a[rest], b[rest], eps2, inclusive)
-    joined = np.zeros(ncell, dtype=bool)
-    joined[b[hit]] = True          # b = a + 1 in sorted order: joined to its predecessor
-    comp = np.cumsum(~joined) - 1
-    link(None, [o for o in _BATCHES[0] if o != (0, 0, 1)])
-    comp = refresh(comp)
-    lap("faces")
-    link(None, _BATCHES[1])
-    comp = refresh(comp)
-    lap("other touching")
-    # Pass 2 (a shortcut, adds only true links): cells of small components look in every far
-    # direction, which absorbs most fragments into their surface's component.
-    csize = np.bincount(comp, minlength=ncell)
-    small = np.flatnonzero(csize[comp] <= _SMALL_COMPONENT_CELLS)
-    if len(small):
-        link(small, _FAR_BOTH)
-        comp = refresh(comp)
-    # Pass 3 (the exact sweep): every far half offset from each cell that may still have a
-    # friend in another component.
-    lap(f"small components ({len(small)} cells)")
-    sel = _active_cells(cell_keys, dims, comp)
-    lap(f"active cells ({len(sel)} of {ncell})")
-    if len(sel):
-        link(sel, _FAR_HALF)
-        comp = refresh(comp)
-    lap("far offsets")
+    comp = _link_cells(p, cells, eps2, inclusive, lap)
     # Relabel at the cell level (sizes counted in points), then spread to the points.
     if _components:
         out = np.empty(n, dtype=np.int64)
-        out[order] = comp[cell_of_sorted]
+        out[cells.order] = comp[cells.cell_of_sorted]
         return out
-    cell_label = _relabel(comp, counts, min_size)
+    cell_label = _relabel(comp, cells.counts, min_size)
     labels = np.empty(n, dtype=np.int64)
-    labels[order] = cell_label[cell_of_sorted]
+    labels[cells.order] = cell_label[cells.cell_of_sorted]
     lap("labels")
     return labels
 

@@ -219,6 +219,63 @@ def _as_float(v: Any, what: str) -> float:
         raise InputError(f"{what} must be a number, got {v!r}") from None
 
 
+def _checked_factors(k_sigma: Any, scale: float | None) -> tuple[float, float]:
+    """(k, s): the coverage factor (finite, >= 0) and the model-to-real factor (> 0; 1 without one)."""
+    k = _as_float(k_sigma, "k_sigma")
+    if not math.isfinite(k) or k < 0:
+        raise ConfigError(f"k_sigma must be a finite number >= 0, got {k_sigma!r}")
+    if scale is None:
+        return k, 1.0
+    s = _as_float(scale, "scale")
+    if not math.isfinite(s) or s <= 0:
+        raise ConfigError(f"scale must be a positive number (model-to-real factor), got {scale!r}")
+    return k, s
+
+
+def _dimension_verdict(v: float, u: float, lim: float | None, k: float) -> dict[str, Any]:
+    """One dimension's entry: value v, standard uncertainty u and limit lim (m), its verdict at k sigma."""
+    entry: dict[str, Any] = {
+        "value_m": v if math.isfinite(v) else None,
+        "uncertainty_m": u if math.isfinite(u) else None,
+        "limit_m": lim,
+        "margin_m": (lim - v) if (lim is not None and math.isfinite(v)) else None,
+    }
+    if lim is None:
+        status = "no-limit"
+    elif not math.isfinite(v):
+        status = "not-measured"
+    elif not math.isfinite(u):
+        # without an uncertainty there is no interval to compare, so any verdict would be a guess
+        status = "undecided"
+    elif v - k * u > lim:
+        status = "over"
+    elif v + k * u <= lim:
+        status = "within"
+    else:
+        status = "undecided"
+    entry["verdict"] = status
+    return entry
+
+
+def _overall(statuses: list[str], regulation: Regulation, cls: str, k: float) -> tuple[str, str]:
+    """(overall verdict, reason) from the per-dimension verdicts (in DIMENSIONS order)."""
+    names = {"over": "over the limit", "undecided": "limit within the uncertainty", "not-measured": "not measured"}
+    if "over" in statuses:
+        overall = "over"
+    elif "undecided" in statuses or "not-measured" in statuses:
+        overall = "undecided"
+    elif "within" in statuses:
+        overall = "within"
+    else:
+        overall = "no-limit"
+    flagged = [f"{d} {names[st]}" for d, st in zip(DIMENSIONS, statuses) if st in names]
+    if overall == "within":
+        return overall, f"all limited dimensions within {regulation.name} ({cls}) at {k:g} sigma"
+    if overall == "no-limit":
+        return overall, f"{regulation.name} ({cls}) sets no dimension limit"
+    return overall, f"{'; '.join(flagged)} ({regulation.name}, {cls}, {k:g} sigma)"
+
+
 def over_limit_verdict(
     dims_m: Mapping[str, float],
     uncertainty_m: Mapping[str, float],
@@ -243,15 +300,7 @@ def over_limit_verdict(
     class sets none. Overall: over if any over, else undecided if any undecided (or a limited
     dimension was not measured), else within. ``margin_m`` = limit − value (positive: headroom).
     """
-    k = _as_float(k_sigma, "k_sigma")
-    if not math.isfinite(k) or k < 0:
-        raise ConfigError(f"k_sigma must be a finite number >= 0, got {k_sigma!r}")
-    if scale is not None:
-        s = _as_float(scale, "scale")
-        if not math.isfinite(s) or s <= 0:
-            raise ConfigError(f"scale must be a positive number (model-to-real factor), got {scale!r}")
-    else:
-        s = 1.0
+    k, s = _checked_factors(k_sigma, scale)
     cls = regulation._check_class(vehicle_class)
     limits = regulation.limits(cls)
 
@@ -278,34 +327,9 @@ def over_limit_verdict(
     for d, u in uncert.items():
         if math.isfinite(u) and u < 0:
             raise InputError(f"uncertainty_m[{d!r}] must be >= 0, got {u!r}")
-
-    statuses = []
     for d in DIMENSIONS:
-        v = measured[d] * s
-        u = uncert[d] * s
-        lim = limits[d]
-        entry: dict[str, Any] = {
-            "value_m": v if math.isfinite(v) else None,
-            "uncertainty_m": u if math.isfinite(u) else None,
-            "limit_m": lim,
-            "margin_m": (lim - v) if (lim is not None and math.isfinite(v)) else None,
-        }
-        if lim is None:
-            status = "no-limit"
-        elif not math.isfinite(v):
-            status = "not-measured"
-        elif not math.isfinite(u):
-            # without an uncertainty there is no interval to compare, so any verdict would be a guess
-            status = "undecided"
-        elif v - k * u > lim:
-            status = "over"
-        elif v + k * u <= lim:
-            status = "within"
-        else:
-            status = "undecided"
-        entry["verdict"] = status
-        out["dimensions"][d] = entry
-        statuses.append(status)
+        out["dimensions"][d] = _dimension_verdict(measured[d] * s, uncert[d] * s, limits[d], k)
+    statuses = [e["verdict"] for e in out["dimensions"].values()]
 
     length = measured["length"]
     if scale is None and math.isfinite(length) and length < MIN_ROAD_VEHICLE_LENGTH_M:
@@ -318,25 +342,8 @@ def over_limit_verdict(
             entry["verdict"] = "not-applicable"
             entry["margin_m"] = None  # a model's size against a road limit means nothing
         return out
-
-    names = {"over": "over the limit", "undecided": "limit within the uncertainty", "not-measured": "not measured"}
-    if "over" in statuses:
-        overall = "over"
-    elif "undecided" in statuses or "not-measured" in statuses:
-        overall = "undecided"
-    elif "within" in statuses:
-        overall = "within"
-    else:
-        overall = "no-limit"
-    out["overall"] = overall
-    flagged = [f"{d} {names[st]}" for d, st in zip(DIMENSIONS, statuses) if st in names]
-    if overall == "within":
-        out["reason"] = f"all limited dimensions within {regulation.name} ({cls}) at {k:g} sigma"
-    elif overall == "no-limit":
-        out["reason"] = f"{regulation.name} ({cls}) sets no dimension limit"
-    else:
-        out["reason"] = f"{'; '.join(flagged)} ({regulation.name}, {cls}, {k:g} sigma)"
-    log.debug("verdict %s: %s", overall, out["reason"])
+    out["overall"], out["reason"] = _overall(statuses, regulation, cls, k)
+    log.debug("verdict %s: %s", out["overall"], out["reason"])
     return out
 
 

@@ -182,6 +182,59 @@ def _rotation_from_to(a, b):
     return np.eye(3) + vx + vx @ vx * (1 / (1 + c))
 
 
+def _distractors(rng: np.random.Generator, spec: SceneSpec, L: float, W: float, glo: np.ndarray,
+                 ghi: np.ndarray) -> list[np.ndarray]:
+    """Posts and small boxes on the ground (m), away from a truck of length L and width W."""
+    d_parts = []
+    for _ in range(spec.distractors):
+        for _try in range(50):
+            c = glo[:2] + rng.random(2) * (ghi[:2] - glo[:2])
+            if not (-0.3 * L < c[0] < 1.3 * L and -W * 2.5 < c[1] < W * 2.5):
+                break
+        size = np.array([0.05, 0.05, 0.3]) * L * rng.uniform(0.3, 1.0, 3)
+        d = np.concatenate(list(_sample_box(rng, (c[0], c[1], 0), (c[0] + size[0], c[1] + size[1], size[2]),
+                                            spec.spacing_m).values()))
+        d_parts.append(d)
+    return d_parts
+
+
+def _degrade(pts: np.ndarray, lab: np.ndarray, rng: np.random.Generator, spec: SceneSpec, glo: np.ndarray,
+             ghi: np.ndarray, H: float) -> tuple[np.ndarray, np.ndarray]:
+    """The cloud as a reconstruction delivers it: thinned towards the rear, noisy, with outliers (label 4)."""
+    if spec.density_gradient > 0:
+        # Thin points out towards the rear: keep probability from 1/(1+g) at the rear to 1 at the front.
+        t = np.clip((pts[:, 0] - glo[0]) / (ghi[0] - glo[0]), 0, 1)
+        keep_p = (1 + spec.density_gradient * t) / (1 + spec.density_gradient)
+        keep = rng.random(len(pts)) < keep_p
+        pts, lab = pts[keep], lab[keep]
+    if spec.noise_m > 0:
+        pts = pts + rng.normal(0, spec.noise_m, pts.shape)
+    if spec.outlier_fraction > 0:
+        n_out = int(spec.outlier_fraction * len(pts))
+        lo = np.array([glo[0], glo[1], -0.2 * H])
+        hi = np.array([ghi[0], ghi[1], 1.5 * H])
+        out = lo + rng.random((n_out, 3)) * (hi - lo)
+        pts = np.concatenate([pts, out])
+        lab = np.concatenate([lab, np.full(n_out, 4)])
+    return pts, lab
+
+
+def _scene_rotation(spec: SceneSpec) -> np.ndarray:
+    """Output-from-truck rotation: yaw about up, then tilt the up axis, then optional camera-like axes."""
+    yaw = np.deg2rad(spec.yaw_deg)
+    Rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    tilt_axis = np.array([np.cos(0.7), np.sin(0.7), 0.0])
+    t = np.deg2rad(spec.tilt_deg)
+    up = np.cos(t) * np.array([0, 0, 1.0]) + np.sin(t) * np.cross(tilt_axis, [0, 0, 1.0])
+    Rt = _rotation_from_to(np.array([0, 0, 1.0]), up)
+    R = Rt @ Rz
+    if spec.camera_frame:
+        # Truck-frame z (up) becomes -y (OpenCV camera y points down); x stays, y -> z.
+        C = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
+        R = C @ R
+    return R
+
+
 def make_truck_scene(shape: TruckShape = FULL_TRUCK, spec: SceneSpec = SceneSpec(), rng=None) -> tuple[np.ndarray, dict]:
     """A truck on ground with optional clutter, as an (N, 3) float64 cloud plus its truth.
 
@@ -208,16 +261,7 @@ def make_truck_scene(shape: TruckShape = FULL_TRUCK, spec: SceneSpec = SceneSpec
     margin = spec.ground_margin * L
     glo = np.array([-margin, -W / 2 - margin, 0.0])
     ghi = np.array([L + margin, W / 2 + margin, 0.0])
-    # Distractors: posts and small boxes on the ground, away from the truck.
-    d_parts = []
-    for _ in range(spec.distractors):
-        for _try in range(50):
-            c = glo[:2] + rng.random(2) * (ghi[:2] - glo[:2])
-            if not (-0.3 * L < c[0] < 1.3 * L and -W * 2.5 < c[1] < W * 2.5):
-                break
-        size = np.array([0.05, 0.05, 0.3]) * L * rng.uniform(0.3, 1.0, 3)
-        d = np.concatenate(list(_sample_box(rng, (c[0], c[1], 0), (c[0] + size[0], c[1] + size[1], size[2]), sp).values()))
-        d_parts.append(d)
+    d_parts = _distractors(rng, spec, L, W, glo, ghi)
     if d_parts:
         d = np.concatenate(d_parts)
         clouds.append(d)
@@ -228,36 +272,10 @@ def make_truck_scene(shape: TruckShape = FULL_TRUCK, spec: SceneSpec = SceneSpec
     ground = ground[~under]
     clouds.append(ground)
     labels.append(np.full(len(ground), 0))
-    pts = np.concatenate(clouds)
-    lab = np.concatenate(labels)
-    if spec.density_gradient > 0:
-        # Thin points out towards the rear: keep probability from 1/(1+g) at the rear to 1 at the front.
-        t = np.clip((pts[:, 0] - glo[0]) / (ghi[0] - glo[0]), 0, 1)
-        keep_p = (1 + spec.density_gradient * t) / (1 + spec.density_gradient)
-        keep = rng.random(len(pts)) < keep_p
-        pts, lab = pts[keep], lab[keep]
-    if spec.noise_m > 0:
-        pts = pts + rng.normal(0, spec.noise_m, pts.shape)
-    if spec.outlier_fraction > 0:
-        n_out = int(spec.outlier_fraction * len(pts))
-        lo = np.array([glo[0], glo[1], -0.2 * H])
-        hi = np.array([ghi[0], ghi[1], 1.5 * H])
-        out = lo + rng.random((n_out, 3)) * (hi - lo)
-        pts = np.concatenate([pts, out])
-        lab = np.concatenate([lab, np.full(n_out, 4)])
-    # Scene pose: yaw about up, then tilt the up axis, then optional camera-like axes, then shift.
+    pts, lab = _degrade(np.concatenate(clouds), np.concatenate(labels), rng, spec, glo, ghi, H)
+    # Scene pose: the rotation, then shift.
     centre_local = np.array([L / 2, 0.0, H / 2])
-    yaw = np.deg2rad(spec.yaw_deg)
-    Rz = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
-    tilt_axis = np.array([np.cos(0.7), np.sin(0.7), 0.0])
-    t = np.deg2rad(spec.tilt_deg)
-    up = np.cos(t) * np.array([0, 0, 1.0]) + np.sin(t) * np.cross(tilt_axis, [0, 0, 1.0])
-    Rt = _rotation_from_to(np.array([0, 0, 1.0]), up)
-    R = Rt @ Rz
-    if spec.camera_frame:
-        # Truck-frame z (up) becomes -y (OpenCV camera y points down); x stays, y -> z.
-        C = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])
-        R = C @ R
+    R = _scene_rotation(spec)
     tr = np.asarray(spec.translation_m, float)
     out_pts = pts @ R.T + tr
     perm = rng.permutation(len(out_pts))

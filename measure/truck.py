@@ -125,17 +125,30 @@ def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, g
     return sorted(members)
 
 
-def select_truck(xyz_ground: np.ndarray, labels: np.ndarray, filt: TruckFilter, centre_hint_xy: np.ndarray | None = None,
-                 source: str = "cloud") -> tuple[int, dict]:
-    """Choose the truck cluster.
+def _filter_reason(box: dict, filt: TruckFilter) -> tuple[str, str] | None:
+    """(rule, text) of the first size or shape filter a cluster's cuboid fails (m), None when it passes."""
+    L, W, H = box["length_m"], box["width_m"], box["height_m"]
+    dims = f"{L:.3g} x {W:.3g} x {H:.3g} m"
+    if L < filt.min_length_m:
+        return "min_length", f"{dims}, length < {filt.min_length_m:.3g} m"
+    if filt.max_length_m is not None and L > filt.max_length_m:
+        return "max_length", f"{dims}, length > {filt.max_length_m:.3g} m"
+    if W < filt.min_width_m:
+        return "min_width", f"{dims}, width < {filt.min_width_m:.3g} m"
+    if H < filt.min_height_m:
+        return "min_height", f"{dims}, height < {filt.min_height_m:.3g} m"
+    if not (filt.min_length_to_width <= L / max(W, 1e-12) <= filt.max_length_to_width):
+        return "length_to_width", (f"{dims}, length/width {L / max(W, 1e-12):.2f} outside "
+                                   f"[{filt.min_length_to_width}, {filt.max_length_to_width}]")
+    if not (filt.min_height_to_width <= H / max(W, 1e-12) <= filt.max_height_to_width):
+        return "height_to_width", (f"{dims}, height/width {H / max(W, 1e-12):.2f} outside "
+                                   f"[{filt.min_height_to_width}, {filt.max_height_to_width}]")
+    return None
 
-    xyz_ground: (N, 3) non-ground points in the ground frame (z = height above ground, metres).
-    labels: (N,) FoF labels (-1 noise). centre_hint_xy: (2,) hint in the same frame, or None.
-    Returns (label, stats) where stats lists every cluster considered and why each was rejected.
-    Raises StageError when no cluster passes or two are equally plausible.
-    """
-    n_lab = int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0
-    counts = np.bincount(labels[labels >= 0], minlength=n_lab)
+
+def _truck_candidates(xyz_ground: np.ndarray, labels: np.ndarray, counts: np.ndarray, filt: TruckFilter):
+    """(candidates [(label, cuboid)], rejected {rule: n}, examples {rule: text}) over the FoF clusters."""
+    n_lab = len(counts)
     rejected: dict[str, int] = {}
     examples: dict[str, str] = {}
     candidates: list[tuple[int, dict]] = []
@@ -159,22 +172,45 @@ def select_truck(xyz_ground: np.ndarray, labels: np.ndarray, filt: TruckFilter, 
         idx = order[bounds[lab + 1] : bounds[lab + 2]]
         pts = xyz_ground[idx]
         box = cuboid(pts[:, :2], pts[:, 2])
-        L, W, H = box["length_m"], box["width_m"], box["height_m"]
-        dims = f"{L:.3g} x {W:.3g} x {H:.3g} m"
-        if L < filt.min_length_m:
-            reject("min_length", lab, f"{dims}, length < {filt.min_length_m:.3g} m")
-        elif filt.max_length_m is not None and L > filt.max_length_m:
-            reject("max_length", lab, f"{dims}, length > {filt.max_length_m:.3g} m")
-        elif W < filt.min_width_m:
-            reject("min_width", lab, f"{dims}, width < {filt.min_width_m:.3g} m")
-        elif H < filt.min_height_m:
-            reject("min_height", lab, f"{dims}, height < {filt.min_height_m:.3g} m")
-        elif not (filt.min_length_to_width <= L / max(W, 1e-12) <= filt.max_length_to_width):
-            reject("length_to_width", lab, f"{dims}, length/width {L / max(W, 1e-12):.2f} outside [{filt.min_length_to_width}, {filt.max_length_to_width}]")
-        elif not (filt.min_height_to_width <= H / max(W, 1e-12) <= filt.max_height_to_width):
-            reject("height_to_width", lab, f"{dims}, height/width {H / max(W, 1e-12):.2f} outside [{filt.min_height_to_width}, {filt.max_height_to_width}]")
+        why = _filter_reason(box, filt)
+        if why is not None:
+            reject(why[0], lab, why[1])
         else:
             candidates.append((lab, box))
+    return candidates, rejected, examples
+
+
+def _choose(candidates: list, filt: TruckFilter, centre_hint_xy, source: str) -> tuple[int, str]:
+    """(label, selection rule): nearest to the centre hint, else the largest cuboid; StageError when two tie."""
+    if centre_hint_xy is not None:
+        dist = [(_footprint_distance(b, np.asarray(centre_hint_xy)), lab, b) for lab, b in candidates]
+        dist.sort(key=lambda t: t[0])
+        if len(dist) > 1 and dist[0][0] == 0.0 and dist[1][0] == 0.0:
+            raise StageError("measure", f"{source}: two equally plausible trucks both cover the centre hint (clusters {dist[0][1]} and {dist[1][1]})")
+        return dist[0][1], "nearest_to_centre_hint"
+    candidates = sorted(candidates, key=lambda t: -t[1]["volume_m3"])
+    if len(candidates) > 1 and candidates[1][1]["volume_m3"] >= filt.ambiguity_ratio * candidates[0][1]["volume_m3"]:
+        a, b = candidates[0], candidates[1]
+        raise StageError(
+            "measure",
+            f"{source}: two equally plausible trucks (clusters {a[0]} and {b[0]}: cuboids {a[1]['length_m']:.3g} x {a[1]['width_m']:.3g} x {a[1]['height_m']:.3g} m "
+            f"and {b[1]['length_m']:.3g} x {b[1]['width_m']:.3g} x {b[1]['height_m']:.3g} m); pass --centre X,Y,Z to choose",
+        )
+    return candidates[0][0], "largest_cuboid_volume"
+
+
+def select_truck(xyz_ground: np.ndarray, labels: np.ndarray, filt: TruckFilter, centre_hint_xy: np.ndarray | None = None,
+                 source: str = "cloud") -> tuple[int, dict]:
+    """Choose the truck cluster.
+
+    xyz_ground: (N, 3) non-ground points in the ground frame (z = height above ground, metres).
+    labels: (N,) FoF labels (-1 noise). centre_hint_xy: (2,) hint in the same frame, or None.
+    Returns (label, stats) where stats lists every cluster considered and why each was rejected.
+    Raises StageError when no cluster passes or two are equally plausible.
+    """
+    n_lab = int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0
+    counts = np.bincount(labels[labels >= 0], minlength=n_lab)
+    candidates, rejected, examples = _truck_candidates(xyz_ground, labels, counts, filt)
     stats = {
         "n_clusters": n_lab,
         "n_noise_points": int((labels < 0).sum()),
@@ -186,23 +222,6 @@ def select_truck(xyz_ground: np.ndarray, labels: np.ndarray, filt: TruckFilter, 
     if not candidates:
         why = "; ".join(f"{k}: {v} rejected (e.g. {examples[k]})" for k, v in rejected.items()) or "no clusters at all"
         raise StageError("measure", f"{source}: no truck-like cluster ({n_lab} clusters; {why})")
-    if centre_hint_xy is not None:
-        dist = [(_footprint_distance(b, np.asarray(centre_hint_xy)), lab, b) for lab, b in candidates]
-        dist.sort(key=lambda t: t[0])
-        if len(dist) > 1 and dist[0][0] == 0.0 and dist[1][0] == 0.0:
-            raise StageError("measure", f"{source}: two equally plausible trucks both cover the centre hint (clusters {dist[0][1]} and {dist[1][1]})")
-        chosen = dist[0][1]
-        stats["selection_rule"] = "nearest_to_centre_hint"
-    else:
-        candidates.sort(key=lambda t: -t[1]["volume_m3"])
-        if len(candidates) > 1 and candidates[1][1]["volume_m3"] >= filt.ambiguity_ratio * candidates[0][1]["volume_m3"]:
-            a, b = candidates[0], candidates[1]
-            raise StageError(
-                "measure",
-                f"{source}: two equally plausible trucks (clusters {a[0]} and {b[0]}: cuboids {a[1]['length_m']:.3g} x {a[1]['width_m']:.3g} x {a[1]['height_m']:.3g} m "
-                f"and {b[1]['length_m']:.3g} x {b[1]['width_m']:.3g} x {b[1]['height_m']:.3g} m); pass --centre X,Y,Z to choose",
-            )
-        chosen = candidates[0][0]
-        stats["selection_rule"] = "largest_cuboid_volume"
+    chosen, stats["selection_rule"] = _choose(candidates, filt, centre_hint_xy, source)
     stats["chosen_label"] = int(chosen)
     return int(chosen), stats

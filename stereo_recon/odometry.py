@@ -462,76 +462,88 @@ class StereoVO:
         re-initialised at this frame (pose unknown: None is returned, the gap is recorded and the
         new segment starts at the last known pose).
         """
-        cfg = self.cfg
         gray = left_rect_gray
         if gray.ndim == 3:
             gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY)
-        if depth_m is not None:
-            depth_m = np.asarray(depth_m)
-            if depth_m.shape[:2] != gray.shape[:2]:
-                raise ValueError(f"track: depth {depth_m.shape[:2]} and image {gray.shape[:2]} sizes differ")
-            ds = _DenseDepth(self, depth_m)
-        elif right_rect_gray is not None:
-            right = right_rect_gray if right_rect_gray.ndim == 2 else cv2.cvtColor(right_rect_gray, cv2.COLOR_BGR2GRAY)
-            if right.shape[:2] != gray.shape[:2]:
-                raise ValueError(f"track: right {right.shape[:2]} and left {gray.shape[:2]} sizes differ")
-            ds = _SparseStereoDepth(self, gray, right)
-        else:
-            raise ValueError("track: give depth_m or right_rect_gray")
+        ds = self._depth_source(gray, depth_m, right_rect_gray)
         if not self._keyframes:
             T = np.eye(4)
             self._make_keyframe(index, gray, ds, T, link_prev=False)
             self._record(index, timestamp_s, T)
             return T.copy()
-
-        T_wc = None
-        if len(self._pts2) >= cfg.min_inliers:
-            # Track from the keyframe image (not the previous frame) so that the tracking errors of
-            # consecutive frames do not add up along a track; the previous position seeds the search.
-            win = (cfg.lk_window_px, cfg.lk_window_px)
-            flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-            p0 = self._kf_pts2.reshape(-1, 1, 2)
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(self._kf_gray, gray, p0, self._pts2.reshape(-1, 1, 2).copy(),
-                                                 winSize=win, maxLevel=cfg.lk_levels, flags=flags)
-            p0r, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self._kf_gray, p1, p0.copy(), winSize=win,
-                                                   maxLevel=cfg.lk_levels, flags=flags)
-            fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
-            p1 = p1.reshape(-1, 2)
-            h, w = gray.shape[:2]
-            good = (st.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb < cfg.lk_fb_max_px)
-            good &= (p1[:, 0] >= 0) & (p1[:, 0] < w) & (p1[:, 1] >= 0) & (p1[:, 1] < h)
-            self._keep(good, p1)
-            T_cw, inl = self._pnp(self._pts3w, self._pts2)
-            if T_cw is not None:
-                T_wc = _inv(T_cw)
-                self._keep(inl)
-
+        T_wc = self._track_from_keyframe(gray) if len(self._pts2) >= self.cfg.min_inliers else None
         if T_wc is None:
-            self._keep(np.zeros(len(self._pts2), bool))
-            T_wc, orb = self._relocalise(gray, ds)
-            if T_wc is not None:
-                self._n_reloc += 1
-                log.info("frame %d: tracking lost, relocalised against a recent keyframe", index)
-                self._make_keyframe(index, gray, ds, T_wc, link_prev=True, orb=orb)
-                self._record(index, timestamp_s, T_wc)
-                return T_wc.copy()
-            # Re-initialise: a new segment at the last known pose; this frame's pose is unknown.
-            last = self._indices[-1] if self._indices else index
-            self._gaps.append((int(last), int(index)))
-            self._segment += 1
-            log.warning("frame %d: tracking lost since frame %d, re-initialised", index, last)
-            self._make_keyframe(index, gray, ds, self._T_prev.copy(), link_prev=False, orb=orb)
-            return None
-
-        kf = self._keyframes[-1]
-        rel = _inv(kf.T_wc) @ T_wc
-        n = len(self._pts2)
-        if (n < cfg.keyframe_min_track_ratio * self._kf_tracks0 or n < cfg.keyframe_min_tracks
-                or rotation_angle_deg(rel[:3, :3]) > cfg.keyframe_rotation_deg
-                or np.linalg.norm(rel[:3, 3]) > cfg.keyframe_translation_rel * kf.median_depth_m):
+            return self._recover(index, gray, ds, timestamp_s)
+        if self._needs_keyframe(T_wc):
             self._make_keyframe(index, gray, ds, T_wc, link_prev=True)
         self._record(index, timestamp_s, T_wc)
         return T_wc.copy()
+
+    def _depth_source(self, gray: np.ndarray, depth_m: np.ndarray | None, right_rect_gray: np.ndarray | None):
+        """Where keyframe corners get their depth: the dense map (m), or sparse matching in the right image."""
+        if depth_m is not None:
+            depth_m = np.asarray(depth_m)
+            if depth_m.shape[:2] != gray.shape[:2]:
+                raise ValueError(f"track: depth {depth_m.shape[:2]} and image {gray.shape[:2]} sizes differ")
+            return _DenseDepth(self, depth_m)
+        if right_rect_gray is not None:
+            right = right_rect_gray if right_rect_gray.ndim == 2 else cv2.cvtColor(right_rect_gray, cv2.COLOR_BGR2GRAY)
+            if right.shape[:2] != gray.shape[:2]:
+                raise ValueError(f"track: right {right.shape[:2]} and left {gray.shape[:2]} sizes differ")
+            return _SparseStereoDepth(self, gray, right)
+        raise ValueError("track: give depth_m or right_rect_gray")
+
+    def _track_from_keyframe(self, gray: np.ndarray) -> np.ndarray | None:
+        """Pose (world-from-camera, m) of this image by LK tracking of the keyframe's corners and PnP; None = lost."""
+        cfg = self.cfg
+        # Track from the keyframe image (not the previous frame) so that the tracking errors of
+        # consecutive frames do not add up along a track; the previous position seeds the search.
+        win = (cfg.lk_window_px, cfg.lk_window_px)
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+        p0 = self._kf_pts2.reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(self._kf_gray, gray, p0, self._pts2.reshape(-1, 1, 2).copy(),
+                                             winSize=win, maxLevel=cfg.lk_levels, flags=flags)
+        p0r, st2, _ = cv2.calcOpticalFlowPyrLK(gray, self._kf_gray, p1, p0.copy(), winSize=win,
+                                               maxLevel=cfg.lk_levels, flags=flags)
+        fb = np.linalg.norm((p0r - p0).reshape(-1, 2), axis=1)
+        p1 = p1.reshape(-1, 2)
+        h, w = gray.shape[:2]
+        good = (st.reshape(-1) == 1) & (st2.reshape(-1) == 1) & (fb < cfg.lk_fb_max_px)
+        good &= (p1[:, 0] >= 0) & (p1[:, 0] < w) & (p1[:, 1] >= 0) & (p1[:, 1] < h)
+        self._keep(good, p1)
+        T_cw, inl = self._pnp(self._pts3w, self._pts2)
+        if T_cw is None:
+            return None
+        self._keep(inl)
+        return _inv(T_cw)
+
+    def _recover(self, index: int, gray: np.ndarray, ds, timestamp_s: float | None) -> np.ndarray | None:
+        """After a loss: relocalise against recent keyframes, else re-initialise a new segment (pose None)."""
+        self._keep(np.zeros(len(self._pts2), bool))
+        T_wc, orb = self._relocalise(gray, ds)
+        if T_wc is not None:
+            self._n_reloc += 1
+            log.info("frame %d: tracking lost, relocalised against a recent keyframe", index)
+            self._make_keyframe(index, gray, ds, T_wc, link_prev=True, orb=orb)
+            self._record(index, timestamp_s, T_wc)
+            return T_wc.copy()
+        # Re-initialise: a new segment at the last known pose; this frame's pose is unknown.
+        last = self._indices[-1] if self._indices else index
+        self._gaps.append((int(last), int(index)))
+        self._segment += 1
+        log.warning("frame %d: tracking lost since frame %d, re-initialised", index, last)
+        self._make_keyframe(index, gray, ds, self._T_prev.copy(), link_prev=False, orb=orb)
+        return None
+
+    def _needs_keyframe(self, T_wc: np.ndarray) -> bool:
+        """Too few tracks left, or the camera turned or moved too far from the last keyframe."""
+        cfg = self.cfg
+        kf = self._keyframes[-1]
+        rel = _inv(kf.T_wc) @ T_wc
+        n = len(self._pts2)
+        return bool(n < cfg.keyframe_min_track_ratio * self._kf_tracks0 or n < cfg.keyframe_min_tracks
+                    or rotation_angle_deg(rel[:3, :3]) > cfg.keyframe_rotation_deg
+                    or np.linalg.norm(rel[:3, 3]) > cfg.keyframe_translation_rel * kf.median_depth_m)
 
     def finish(self) -> Trajectory:
         """All tracked frames' poses after loop-closing pose-graph optimisation (when loops were found)."""

@@ -177,6 +177,137 @@ def _metric_scale(rec, names_by_id: dict, depth_dir: Path, config: SfMConfig) ->
     return s, stats
 
 
+def _reset_work_dir(work_dir: Path) -> tuple[Path, Path]:
+    """(database.db, sparse/) in work_dir, the previous SfM files removed."""
+    work_dir.mkdir(parents=True, exist_ok=True)
+    db = work_dir / "database.db"
+    sparse = work_dir / "sparse"
+    for p in (db, work_dir / "database.db-shm", work_dir / "database.db-wal"):
+        p.unlink(missing_ok=True)
+    shutil.rmtree(sparse, ignore_errors=True)
+    sparse.mkdir()
+    return db, sparse
+
+
+def _feature_options(pycolmap, K: np.ndarray, first_image: Path, config: SfMConfig):
+    """(reader, extraction, matching, verification) options: the rectified pinhole K fixed, SIFT sized to the images."""
+    import cv2
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    # COLMAP puts pixel centres at +0.5 (image origin at the top-left corner), OpenCV at integers.
+    reader.camera_params = ",".join(f"{v:.9g}" for v in (K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5))
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = config.num_threads
+    extraction.max_image_size = config.max_image_size
+    extraction.sift.peak_threshold = config.sift_peak_threshold
+    first = cv2.imread(str(first_image), cv2.IMREAD_UNCHANGED)
+    if first is None:
+        raise InputError(f"{first_image}: cannot read image")
+    small = max(first.shape[:2]) <= 1000
+    extraction.sift.first_octave = (config.sift_first_octave if config.sift_first_octave is not None
+                                    else -1 if small else 0)
+    extraction.sift.max_num_features = (config.max_num_features if config.max_num_features is not None
+                                        else 4096 if small else 2048)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = config.num_threads
+    matching.guided_matching = config.guided_matching if config.guided_matching is not None else small
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = config.seed
+    return reader, extraction, matching, verification
+
+
+def _mapping_options(pycolmap, config: SfMConfig):
+    """Incremental mapping options: intrinsics held fixed, seeded."""
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = config.num_threads
+    opts.random_seed = config.seed
+    opts.multiple_models = False
+    opts.ba_refine_focal_length = False
+    opts.ba_refine_principal_point = False
+    opts.ba_refine_extra_params = False
+    opts.mapper.abs_pose_refine_focal_length = False
+    opts.mapper.abs_pose_refine_extra_params = False
+    opts.min_num_matches = config.min_num_matches
+    opts.mapper.init_min_num_inliers = config.init_min_num_inliers
+    opts.mapper.abs_pose_min_num_inliers = config.abs_pose_min_num_inliers
+    opts.mapper.filter_max_reproj_error = config.filter_max_reproj_error_px
+    opts.mapper.random_seed = config.seed
+    opts.triangulation.random_seed = config.seed
+    return opts
+
+
+def _match(pycolmap, db: Path, names: list[str], work_dir: Path, matching, verification,
+           config: SfMConfig) -> tuple[str, int]:
+    """Match the images' features: exhaustive for small sets, else sequential plus loop pairs; (mode, pairs)."""
+    mode = config.matching
+    if mode == "auto":
+        mode = "exhaustive" if len(names) <= config.exhaustive_max_images else "sequential"
+    if mode == "exhaustive":
+        pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification,
+                                  device=pycolmap.Device.cpu)
+        return mode, len(names) * (len(names) - 1) // 2
+    pairs = loop_pairs(len(names), config.sequential_overlap, config.loop_stride)
+    pair_file = work_dir / "pairs.txt"
+    pair_file.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = str(pair_file)
+    pycolmap.match_image_pairs(db, matching_options=matching, pairing_options=pairing,
+                               verification_options=verification, device=pycolmap.Device.cpu)
+    return mode, len(pairs)
+
+
+def _largest_model(models, names: list[str], image_dir: Path, config: SfMConfig):
+    """The reconstruction with the most registered images; StageError when too few are registered."""
+    if not models:
+        raise StageError("poses", f"SfM found no initial image pair in {image_dir} ({len(names)} images)")
+    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    n_reg = rec.num_reg_images()
+    if n_reg < max(3, int(np.ceil(config.min_registered_fraction * len(names)))):
+        raise StageError("poses", f"SfM registered only {n_reg} of {len(names)} images in {image_dir}")
+    return rec
+
+
+def _metric_trajectory(rec, names: list[str], image_dir: Path, matching: dict, baseline_m: float | None, depth_dir,
+                       config: SfMConfig, fps: float | None) -> Trajectory:
+    """World-from-left-camera poses (m) of the registered images, world at the first one, scaled by stereo depth.
+
+    matching: {"mode", "pairs"} of the matching step (recorded in the stats with baseline_m)."""
+    names_by_id = {iid: img.name for iid, img in rec.images.items()}
+    reg = sorted((names.index(img.name), iid) for iid, img in rec.images.items() if img.has_pose)
+    order = [iid for _, iid in reg]
+    if not order:
+        raise StageError("poses", f"SfM registered no image in {image_dir}")
+    T = np.stack([_pose_T_wc(rec.images[iid]) for iid in order])
+    stats = {
+        "backend": "sfm",
+        "images": len(names),
+        "registered": len(order),
+        "unregistered": sorted(set(names) - {names_by_id[i] for i in order}),
+        "matching": matching["mode"],
+        "match_pairs": int(matching["pairs"]),
+        "points3D": int(rec.num_points3D()),
+        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+        "baseline_m": baseline_m,
+    }
+    scale = 1.0
+    if depth_dir is not None:
+        scale, sstats = _metric_scale(rec, names_by_id, Path(depth_dir), config)
+        stats.update(sstats)
+    else:
+        stats["scale_source"] = "none"
+        log.warning("SfM without depth maps: poses are up to an unknown scale")
+    # World frame at the first registered camera, metres.
+    T0_inv = np.linalg.inv(T[0])
+    T = T0_inv @ T
+    T[:, :3, 3] *= scale
+    idx = np.array([_frame_index(Path(names_by_id[i]).stem, pos) for pos, i in reg])
+    ts = idx / fps if fps else idx.astype(float)
+    log.info("SfM: %d/%d images registered, %d points, scale %.5g", len(order), len(names),
+             stats["points3D"], scale)
+    return Trajectory(idx, ts, T, stats)
+
+
 def sfm_poses(
     image_dir,
     K_rect: np.ndarray,
@@ -200,7 +331,6 @@ def sfm_poses(
     Returns world-from-left-camera poses of the registered images; unregistered names in stats.
     Raises StageError('poses', ...) when the reconstruction fails.
     """
-    import cv2
     import pycolmap
 
     if not log.isEnabledFor(logging.DEBUG):
@@ -211,113 +341,59 @@ def sfm_poses(
     if K.shape != (3, 3):
         raise InputError(f"K_rect: expected a 3x3 matrix, got shape {K.shape}")
     work_dir = Path(work_dir)
-    work_dir.mkdir(parents=True, exist_ok=True)
-    db = work_dir / "database.db"
-    sparse = work_dir / "sparse"
-    for p in (db, work_dir / "database.db-shm", work_dir / "database.db-wal"):
-        p.unlink(missing_ok=True)
-    shutil.rmtree(sparse, ignore_errors=True)
-    sparse.mkdir()
-
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = "PINHOLE"
-    # COLMAP puts pixel centres at +0.5 (image origin at the top-left corner), OpenCV at integers.
-    reader.camera_params = ",".join(f"{v:.9g}" for v in (K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5))
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = config.num_threads
-    extraction.max_image_size = config.max_image_size
-    extraction.sift.peak_threshold = config.sift_peak_threshold
-    first = cv2.imread(str(image_dir / names[0]), cv2.IMREAD_UNCHANGED)
-    if first is None:
-        raise InputError(f"{image_dir / names[0]}: cannot read image")
-    small = max(first.shape[:2]) <= 1000
-    extraction.sift.first_octave = (config.sift_first_octave if config.sift_first_octave is not None
-                                    else -1 if small else 0)
-    extraction.sift.max_num_features = (config.max_num_features if config.max_num_features is not None
-                                        else 4096 if small else 2048)
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = config.num_threads
-    matching.guided_matching = config.guided_matching if config.guided_matching is not None else small
-    verification = pycolmap.TwoViewGeometryOptions()
-    verification.ransac.random_seed = config.seed
+    db, sparse = _reset_work_dir(work_dir)
+    reader, extraction, matching, verification = _feature_options(pycolmap, K, image_dir / names[0], config)
     try:
         pycolmap.extract_features(
             db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
             reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
         )
-        mode = config.matching
-        if mode == "auto":
-            mode = "exhaustive" if len(names) <= config.exhaustive_max_images else "sequential"
-        if mode == "exhaustive":
-            pycolmap.match_exhaustive(db, matching_options=matching, verification_options=verification,
-                                      device=pycolmap.Device.cpu)
-            n_pairs = len(names) * (len(names) - 1) // 2
-        else:
-            pairs = loop_pairs(len(names), config.sequential_overlap, config.loop_stride)
-            pair_file = work_dir / "pairs.txt"
-            pair_file.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
-            pairing = pycolmap.ImportedPairingOptions()
-            pairing.match_list_path = str(pair_file)
-            pycolmap.match_image_pairs(db, matching_options=matching, pairing_options=pairing,
-                                       verification_options=verification, device=pycolmap.Device.cpu)
-            n_pairs = len(pairs)
-        opts = pycolmap.IncrementalPipelineOptions()
-        opts.num_threads = config.num_threads
-        opts.random_seed = config.seed
-        opts.multiple_models = False
-        opts.ba_refine_focal_length = False
-        opts.ba_refine_principal_point = False
-        opts.ba_refine_extra_params = False
-        opts.mapper.abs_pose_refine_focal_length = False
-        opts.mapper.abs_pose_refine_extra_params = False
-        opts.min_num_matches = config.min_num_matches
-        opts.mapper.init_min_num_inliers = config.init_min_num_inliers
-        opts.mapper.abs_pose_min_num_inliers = config.abs_pose_min_num_inliers
-        opts.mapper.filter_max_reproj_error = config.filter_max_reproj_error_px
-        opts.mapper.random_seed = config.seed
-        opts.triangulation.random_seed = config.seed
-        models = pycolmap.incremental_mapping(db, image_dir, sparse, options=opts)
+        mode, n_pairs = _match(pycolmap, db, names, work_dir, matching, verification, config)
+        models = pycolmap.incremental_mapping(db, image_dir, sparse, options=_mapping_options(pycolmap, config))
     except StageError:
         raise
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on bad input
         raise StageError("poses", f"pycolmap SfM failed on {image_dir}: {err}") from err
-    if not models:
-        raise StageError("poses", f"SfM found no initial image pair in {image_dir} ({len(names)} images)")
-    rec = max(models.values(), key=lambda r: r.num_reg_images())
-    n_reg = rec.num_reg_images()
-    if n_reg < max(3, int(np.ceil(config.min_registered_fraction * len(names)))):
-        raise StageError("poses", f"SfM registered only {n_reg} of {len(names)} images in {image_dir}")
+    rec = _largest_model(models, names, image_dir, config)
+    return _metric_trajectory(rec, names, image_dir, {"mode": mode, "pairs": n_pairs}, baseline_m, depth_dir, config, fps)
 
-    names_by_id = {iid: img.name for iid, img in rec.images.items()}
-    reg = sorted((names.index(img.name), iid) for iid, img in rec.images.items() if img.has_pose)
-    order = [iid for _, iid in reg]
-    if not order:
-        raise StageError("poses", f"SfM registered no image in {image_dir}")
-    T = np.stack([_pose_T_wc(rec.images[iid]) for iid in order])
-    stats: dict = {
-        "backend": "sfm",
-        "images": len(names),
-        "registered": len(order),
-        "unregistered": sorted(set(names) - {names_by_id[i] for i in order}),
-        "matching": mode,
-        "match_pairs": int(n_pairs),
-        "points3D": int(rec.num_points3D()),
-        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
-        "baseline_m": baseline_m,
-    }
-    scale = 1.0
-    if depth_dir is not None:
-        scale, sstats = _metric_scale(rec, names_by_id, Path(depth_dir), config)
-        stats.update(sstats)
-    else:
-        stats["scale_source"] = "none"
-        log.warning("SfM without depth maps: poses are up to an unknown scale")
-    # World frame at the first registered camera, metres.
-    T0_inv = np.linalg.inv(T[0])
-    T = T0_inv @ T
-    T[:, :3, 3] *= scale
-    idx = np.array([_frame_index(Path(names_by_id[i]).stem, pos) for pos, i in reg])
-    ts = idx / fps if fps else idx.astype(float)
-    log.info("SfM: %d/%d images registered, %d points, scale %.5g", len(order), len(names),
-             stats["points3D"], scale)
-    return Trajectory(idx, ts, T, stats)
+
+def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work: Path, K: np.ndarray,
+                    baseline_m: float, fps: float | None, counts: dict) -> Trajectory:
+    """VO's trajectory with the fused views' and partners' poses replaced by pycolmap SfM's (same world, scale).
+
+    traj: VO's trajectory (rectified left camera, m); keyframes: the fused views' frame indices, images in
+    work/images/<index>.png and depth in work/depth; partners: view -> motion-stereo partner frame, images in
+    work/partner/<view>.png; K (3,3) px and baseline_m (m): the rectified rig. Records the outcome in
+    counts["sfm_refine"]; on failure logs it and returns traj unchanged.
+    """
+    import os
+
+    from stereo_recon.trajectory import graft_poses
+
+    folder = work / "sfm_images"
+    folder.mkdir()
+    sources = {idx: work / "images" / f"{idx:06d}.png" for idx in keyframes}
+    for view, j in partners.items():  # partner images are stored under their view's index
+        sources.setdefault(j, work / "partner" / f"{view:06d}.png")
+    names = []
+    for idx in sorted(sources):
+        if sources[idx].is_file():
+            os.link(sources[idx], folder / f"{idx:06d}.png")
+            names.append(f"{idx:06d}.png")
+    if len(names) < 3:
+        counts["sfm_refine"] = "skipped: fewer than 3 images"
+        return traj
+    try:
+        refined = sfm_poses(folder, K, work / "sfm", baseline_m=baseline_m, depth_dir=work / "depth",
+                            config=SfMConfig(), fps=fps, image_names=names)
+        out, stats = graft_poses(traj, refined)
+    except (StageError, ValueError) as err:
+        log.warning("pose refinement by SfM failed (%s); keeping visual odometry's poses", err)
+        counts["sfm_refine"] = f"failed: {err}"
+        return traj
+    counts["sfm_refine"] = {"images": len(names), "registered": int(refined.stats.get("registered", len(refined))),
+                            **stats}
+    log.info("poses: %d of %d frames bundle-adjusted by SfM (median change %.1f mm, %.3f deg)",
+             stats["grafted_frames"], len(names), 1000 * stats["moved_m_median"], stats["turned_deg_median"])
+    return out

@@ -3,9 +3,9 @@
 A source streams ``StereoFrame`` objects one at a time (memory does not grow with the video's
 length), honours a frame range and a step, skips isolated undecodable frames (counted in
 ``bad_frames``), and checks its eye size against a calibration (``validate_against_rig``).
-``KeyframeSelector`` picks frames by image motion for the stages that need fewer frames.
+Keyframe selection (by pose or by image motion) is in ``views``.
 
-Side-by-side frames hold the left eye in the left half (:mod:`stereo_recon.conventions`).
+Side-by-side frames hold the left eye in the left half (:mod:`stereo_recon.core.conventions`).
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from typing import Iterator
 
 import numpy as np
 
+from stereo_recon.core.frames import EYE_ASPECT_RANGE, split_side_by_side  # noqa: F401 (public here)
 from stereo_recon.core.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
@@ -30,9 +31,6 @@ ZED_FRAME_SIZES: dict[tuple[int, int], str] = {
     (1344, 376): "VGA",
 }
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
-# One eye of a side-by-side frame is wider than tall for every stereo camera we know (ZED: 16:9);
-# an eye aspect outside this range means the frame is not side-by-side (e.g. a mono 16:9 video).
-EYE_ASPECT_RANGE = (1.0, 2.5)
 
 
 @dataclass(frozen=True)
@@ -57,20 +55,6 @@ def parse_frame_range(text: str | None) -> tuple[int, int | None] | None:
     if b is not None and b <= a:
         raise ConfigError(f"--frames {text!r}: STOP must be greater than START")
     return a, b
-
-
-def split_side_by_side(frame: np.ndarray, source: str = "frame") -> tuple[np.ndarray, np.ndarray]:
-    """Split a side-by-side image (H, 2W[, C]) into (left, right) eye images (views, not copies)."""
-    if frame is None or frame.ndim < 2:
-        raise InputError(f"{source}: empty image")
-    h, w = frame.shape[:2]
-    if w % 2:
-        raise InputError(f"{source}: frame width {w} is odd, so it is not a side-by-side stereo frame")
-    eye_aspect = (w // 2) / h
-    if not EYE_ASPECT_RANGE[0] <= eye_aspect <= EYE_ASPECT_RANGE[1]:
-        raise InputError(f"{source}: {w}x{h} frame is not side-by-side (each half would be {w // 2}x{h}, "
-                         f"aspect {eye_aspect:.2f}; expected e.g. 2560x720 for ZED HD720)")
-    return frame[:, : w // 2], frame[:, w // 2:]
 
 
 def _to_bgr(img: np.ndarray) -> np.ndarray:
@@ -326,71 +310,5 @@ def validate_against_rig(source: StereoSource, rig):
     return scaled
 
 
-@dataclass(frozen=True)
-class KeyframeConfig:
-    """When to take a new keyframe (any criterion triggers)."""
-
-    # Median optical-flow magnitude since the last keyframe, as a fraction of the image width.
-    min_flow_frac: float = 0.02
-    # Always take a keyframe after this many frames (None = never forced).
-    max_gap_frames: int | None = 15
-    # Tracked corners; fewer surviving than this fraction of the last keyframe's -> new keyframe.
-    max_corners: int = 300
-    min_tracked_frac: float = 0.5
-    # Images are downscaled to this width for flow (speed; the flow is scaled back).
-    work_width_px: int = 640
-
-
-class KeyframeSelector:
-    """Motion-based keyframe selection: sparse Lucas-Kanade flow from the last keyframe.
-
-    Call ``is_keyframe(index, gray)`` for each frame in order; the first frame is always a keyframe.
-    """
-
-    def __init__(self, config: KeyframeConfig = KeyframeConfig()):
-        self.config = config
-        self._key_gray: np.ndarray | None = None
-        self._key_pts: np.ndarray | None = None
-        self._key_index = -1
-        self.last_flow_px = 0.0
-
-    def _small(self, gray: np.ndarray) -> tuple[np.ndarray, float]:
-        import cv2
-
-        if gray.ndim == 3:
-            gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY)
-        s = min(1.0, self.config.work_width_px / gray.shape[1])
-        if s < 1.0:
-            gray = cv2.resize(gray, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        return gray, s
-
-    def _set_key(self, index: int, small: np.ndarray) -> None:
-        import cv2
-
-        self._key_gray = small
-        self._key_pts = cv2.goodFeaturesToTrack(small, self.config.max_corners, 0.01, 7)
-        self._key_index = index
-
-    def is_keyframe(self, index: int, gray: np.ndarray) -> bool:
-        """True when frame ``index`` (grey or BGR image) moved enough from the last keyframe."""
-        import cv2
-
-        small, s = self._small(gray)
-        c = self.config
-        if self._key_gray is None or self._key_pts is None or len(self._key_pts) < 8:
-            self._set_key(index, small)
-            return True
-        if c.max_gap_frames is not None and index - self._key_index >= c.max_gap_frames:
-            self._set_key(index, small)
-            return True
-        pts, st, _ = cv2.calcOpticalFlowPyrLK(self._key_gray, small, self._key_pts, None)
-        ok = st.reshape(-1) == 1
-        if ok.sum() < c.min_tracked_frac * len(self._key_pts):
-            self._set_key(index, small)
-            return True
-        flow = np.linalg.norm((pts - self._key_pts).reshape(-1, 2)[ok], axis=1)
-        self.last_flow_px = float(np.median(flow)) / s
-        if self.last_flow_px >= c.min_flow_frac * gray.shape[1]:
-            self._set_key(index, small)
-            return True
-        return False
+# Keyframe selection lives in ``views`` (one selector by pose or by image motion); these names stay importable here.
+from stereo_recon.views import KeyframeConfig, KeyframeSelector  # noqa: E402,F401

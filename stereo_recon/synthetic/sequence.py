@@ -1,6 +1,6 @@
 """Render a whole synthetic drone sequence into a folder: video, calibration, poses, truth, depth.
 
-Output folder (written through :func:`stereo_recon.manifest.staged_output_dir`, so a failed run
+Output folder (written through :func:`stereo_recon.core.atomic.staged_output_dir`, so a failed run
 leaves nothing half-written)::
 
     video.avi | video.mp4   side-by-side stereo (left eye in the left half), MJPG AVI by default
@@ -248,6 +248,74 @@ def render_sequence(preset: str, out_dir, seed: int = 0, frames: int | None = No
     return to_jsonable(truth)
 
 
+def _render_frames(renderer, writer, poses: np.ndarray, expo: np.ndarray, noise_rng, depth_dir: Path | None,
+                   sw: Stopwatch, scene_for_frame=None) -> None:
+    """Render every pose and write its side-by-side frame (and left depth, float32 m, into depth_dir).
+
+    JPEG encoding and file writes of frame i run in one background thread while frame i+1 renders
+    (frames are written in order, so the bytes do not depend on the timing).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    n = len(poses)
+    encoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="synth-encode")
+
+    def emit(i: int, pair) -> None:
+        writer.write(np.hstack([pair.left, pair.right]))
+        if depth_dir is not None:
+            np.save(depth_dir / f"{i:06d}.npy", pair.depth_left_m)
+
+    pending = None
+    try:
+        for i in range(n):
+            scene_i = scene_for_frame(i) if scene_for_frame is not None else None
+            if scene_i is not None:
+                renderer.set_scene(scene_i)
+            with sw.stage("render"):
+                pair = renderer.render(poses[i], rng=noise_rng, exposure=float(expo[i]))
+            with sw.stage("encode"):  # the wait for the previous frame's encode (overlapped with this render)
+                if pending is not None:
+                    pending.result()
+                pending = encoder.submit(emit, i, pair)
+            if (i + 1) % 10 == 0:
+                log.info("rendered %d/%d frames", i + 1, n)
+        with sw.stage("encode"):
+            if pending is not None:
+                pending.result()
+    finally:
+        encoder.shutdown(wait=True)
+        writer.release()
+        renderer.close()
+
+
+def _write_truth_files(tmp: Path, video: Path, rig, poses: np.ndarray, truth: dict, fps: float, depth: bool,
+                       run_params: dict, seed: int, sw: Stopwatch) -> None:
+    """poses_gt.txt (TUM), rig.yaml, the ZED conf (raw rigs), truth.json with the file names, synth_run.json."""
+    from calib.io import save_rig
+
+    from stereo_recon.trajectory import Trajectory, write_tum
+
+    n = len(poses)
+    write_tum(tmp / "poses_gt.txt", Trajectory(np.arange(n), np.arange(n) / fps, poses))
+    save_rig(rig, tmp / "rig.yaml")
+    files = {"video": video.name, "rig": "rig.yaml", "poses": "poses_gt.txt"}
+    if not rig.rectified:
+        try:
+            from calib.io import write_zed_conf
+        except ImportError:  # older calib layout
+            from calib.zedconf import write_zed_conf
+        conf = write_zed_conf(rig, tmp / f"SN{SYNTH_SERIAL}.conf", serial=SYNTH_SERIAL)
+        files["conf"] = Path(conf).name
+    if depth:
+        files["depth"] = "depth/NNNNNN.npy (left eye z-depth, float32 m, inf = sky)"
+    files["run"] = "synth_run.json"
+    truth["files"] = files
+    # truth.json holds only seed-determined content (same seed, same bytes); timings and
+    # versions go to synth_run.json.
+    write_json_atomic(tmp / "truth.json", truth)
+    write_json_atomic(tmp / "synth_run.json", run_manifest("synth", {}, run_params, dict(sw.timings_s), seed=int(seed)))
+
+
 def write_sequence(out_dir, scene: Scene, rig, poses: np.ndarray, truth: dict, cfg: RenderConfig, *, fps: float, noise_seed: int,
                    noise_rng: np.random.Generator, exposure: np.ndarray, video_format: str, jpeg_quality: int, depth: bool,
                    run_params: dict, seed: int, stopwatch: Stopwatch | None = None, scene_for_frame=None) -> Path:
@@ -259,8 +327,6 @@ def write_sequence(out_dir, scene: Scene, rig, poses: np.ndarray, truth: dict, c
     Written atomically (a staged folder); an unwritable folder is a one-line ConfigError.
     """
     sw = stopwatch or Stopwatch()
-    n = len(poses)
-    rectified = bool(rig.rectified)
     renderer = StereoRenderer(scene, rig, cfg, noise_seed=noise_seed)
     expo = np.asarray(exposure, float)
     w, h = rig.image_size
@@ -271,61 +337,10 @@ def write_sequence(out_dir, scene: Scene, rig, poses: np.ndarray, truth: dict, c
             writer = _open_writer(video, video_format, fps, (2 * w, h), int(jpeg_quality))
             if depth:
                 (tmp / "depth").mkdir()
-            # JPEG encoding and file writes of frame i run in one background thread while frame i+1
-            # renders (frames are written in order, so the bytes do not depend on the timing).
-            from concurrent.futures import ThreadPoolExecutor
-
-            encoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="synth-encode")
-
-            def emit(i: int, pair) -> None:
-                writer.write(np.hstack([pair.left, pair.right]))
-                if depth:
-                    np.save(tmp / "depth" / f"{i:06d}.npy", pair.depth_left_m)
-
-            pending = None
-            try:
-                for i in range(n):
-                    scene_i = scene_for_frame(i) if scene_for_frame is not None else None
-                    if scene_i is not None:
-                        renderer.set_scene(scene_i)
-                    with sw.stage("render"):
-                        pair = renderer.render(poses[i], rng=noise_rng, exposure=float(expo[i]))
-                    with sw.stage("encode"):  # the wait for the previous frame's encode (overlapped with this render)
-                        if pending is not None:
-                            pending.result()
-                        pending = encoder.submit(emit, i, pair)
-                    if (i + 1) % 10 == 0:
-                        log.info("rendered %d/%d frames", i + 1, n)
-                with sw.stage("encode"):
-                    if pending is not None:
-                        pending.result()
-            finally:
-                encoder.shutdown(wait=True)
-                writer.release()
-                renderer.close()
+            _render_frames(renderer, writer, poses, expo, noise_rng, tmp / "depth" if depth else None, sw,
+                           scene_for_frame)
             with sw.stage("write"):
-                from calib.io import save_rig
-
-                from stereo_recon.trajectory import Trajectory, write_tum
-
-                write_tum(tmp / "poses_gt.txt", Trajectory(np.arange(n), np.arange(n) / fps, poses))
-                save_rig(rig, tmp / "rig.yaml")
-                files = {"video": video.name, "rig": "rig.yaml", "poses": "poses_gt.txt"}
-                if not rectified:
-                    try:
-                        from calib.io import write_zed_conf
-                    except ImportError:  # older calib layout
-                        from calib.zedconf import write_zed_conf
-                    conf = write_zed_conf(rig, tmp / f"SN{SYNTH_SERIAL}.conf", serial=SYNTH_SERIAL)
-                    files["conf"] = Path(conf).name
-                if depth:
-                    files["depth"] = "depth/NNNNNN.npy (left eye z-depth, float32 m, inf = sky)"
-                files["run"] = "synth_run.json"
-                truth["files"] = files
-                # truth.json holds only seed-determined content (same seed, same bytes); timings and
-                # versions go to synth_run.json.
-                write_json_atomic(tmp / "truth.json", truth)
-                write_json_atomic(tmp / "synth_run.json", run_manifest("synth", {}, run_params, dict(sw.timings_s), seed=int(seed)))
+                _write_truth_files(tmp, video, rig, poses, truth, fps, depth, run_params, seed, sw)
     except OSError as err:  # unwritable / full output folder: one line, not a traceback
         raise ConfigError(f"--out {out_dir}: cannot write the output ({err.strerror or err})") from err
     return out_dir

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from calib.boards import BoardSpec, detect_board, parse_board, render_board_texture
-from calib.calibrate import CalibConfig, PairView, _detect_pair, calibrate_stereo, find_image_pairs, select_views
+from calib.calibrate import CalibConfig, PairView, detect_pair, calibrate_stereo, find_image_pairs, select_views
 from calib.boards import DetectConfig
 from calib.io import load_rig
 from calib.rig import StereoRig
@@ -94,7 +94,7 @@ def test_charuco_calibration_recovers_rendered_rig():
     truth, renders = render_views(spec, 10, seed=5)
     views = []
     for k, (left, right) in enumerate(renders):
-        v, why = _detect_pair(f"v{k}", left, right, spec, DetectConfig())
+        v, why = detect_pair(f"v{k}", left, right, spec, DetectConfig())
         assert v is not None, why
         assert v.left.method == "charuco"
         views.append(v)
@@ -276,7 +276,7 @@ def test_outlier_view_is_rejected_and_reported(chess_views):
     spec, truth, renders = chess_views
     views = []
     for k, (left, right) in enumerate(renders):
-        v, why = _detect_pair(f"v{k}", left, right, spec, DetectConfig())
+        v, why = detect_pair(f"v{k}", left, right, spec, DetectConfig())
         assert v is not None, why
         views.append(v)
     # one view with badly located corners in the right eye (e.g. a misdetection or motion between exposures)
