@@ -158,6 +158,14 @@ def _fit_plane(pts: np.ndarray) -> tuple[np.ndarray, float, float]:
     return n, d, rms
 
 
+def _plane_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors spanning the plane with normal ``n``."""
+    a_ = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
+    e1 = np.cross(n, a_)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1)
+
+
 def _cell_median_refit(pts: np.ndarray, n: np.ndarray, d: float, cell_m: float, rms: float) -> tuple[np.ndarray, float, float]:
     """Refit the plane to per-cell median heights (cells of ``cell_m`` in the plane).
 
@@ -165,10 +173,7 @@ def _cell_median_refit(pts: np.ndarray, n: np.ndarray, d: float, cell_m: float, 
     only; a per-cell median ignores such local minorities, which a plain least-squares fit
     would follow. Returns (normal, offset, rms of the points about the new plane).
     """
-    a_ = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
-    e1 = np.cross(n, a_)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n, e1)
+    e1, e2 = _plane_axes(n)
     u, v, r = pts @ e1, pts @ e2, pts @ n + d
     ku = np.floor((u - u.min()) / cell_m).astype(np.int64)
     kv = np.floor((v - v.min()) / cell_m).astype(np.int64)
@@ -194,6 +199,34 @@ def _cell_median_refit(pts: np.ndarray, n: np.ndarray, d: float, cell_m: float, 
     dd = (d - c) / norm
     res = pts @ nn + dd
     return nn, float(dd), float(np.sqrt(np.mean(res**2)))
+
+
+def _final_refit(p: np.ndarray, nn: np.ndarray, d: float, xi_m: float, rms: float) -> tuple[np.ndarray, float, float]:
+    """Refit the accepted plane on its own ±ξ band: least squares, a trim to 2.5 robust sigma, then the
+    per-cell median fit. p: (N, 3) m; (nn, d): the plane; returns (normal, offset, rms)."""
+    # Final least-squares refit on the band around the accepted plane itself.
+    inl = np.abs(p @ nn + d) <= xi_m
+    if inl.sum() >= 3:
+        nn2, d2, rms = _fit_plane(p[inl])
+        if nn2 @ nn < 0:
+            nn2, d2 = -nn2, -d2
+        nn, d = nn2, d2
+        # Trim to ±2.5 robust sigma of the residuals: the fixed band also catches the lowest
+        # parts of wheels and stray points, which tilt a plain least-squares fit.
+        for _ in range(3):
+            r = p[inl] @ nn + d
+            sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+            core = inl.copy()
+            core[inl] = np.abs(r) <= min(2.5 * sigma, xi_m) if sigma > 0 else np.abs(r) <= xi_m
+            if core.sum() < 3:
+                break
+            nn3, d3, rms = _fit_plane(p[core])
+            if nn3 @ nn < 0:
+                nn3, d3 = -nn3, -d3
+            nn, d = nn3, d3
+            inl = np.abs(p @ nn + d) <= xi_m
+        nn, d, rms = _cell_median_refit(p[inl], nn, d, 6 * xi_m, rms)
+    return nn, d, rms
 
 
 def ground_plane(points: np.ndarray, xi_m: float, up_hint: np.ndarray | None = None, max_iter: int = 30, rng=0,
@@ -266,28 +299,7 @@ def ground_plane(points: np.ndarray, xi_m: float, up_hint: np.ndarray | None = N
     if best is None or best[3] < 3:
         raise ValueError("no ground plane: no dense planar layer in the cloud")
     nn, d, tau, n_in, rms, iters = best
-    # Final least-squares refit on the band around the accepted plane itself.
-    inl = np.abs(p @ nn + d) <= xi_m
-    if inl.sum() >= 3:
-        nn2, d2, rms = _fit_plane(p[inl])
-        if nn2 @ nn < 0:
-            nn2, d2 = -nn2, -d2
-        nn, d = nn2, d2
-        # Trim to ±2.5 robust sigma of the residuals: the fixed band also catches the lowest
-        # parts of wheels and stray points, which tilt a plain least-squares fit.
-        for _ in range(3):
-            r = p[inl] @ nn + d
-            sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-            core = inl.copy()
-            core[inl] = np.abs(r) <= min(2.5 * sigma, xi_m) if sigma > 0 else np.abs(r) <= xi_m
-            if core.sum() < 3:
-                break
-            nn3, d3, rms = _fit_plane(p[core])
-            if nn3 @ nn < 0:
-                nn3, d3 = -nn3, -d3
-            nn, d = nn3, d3
-            inl = np.abs(p @ nn + d) <= xi_m
-        nn, d, rms = _cell_median_refit(p[inl], nn, d, 6 * xi_m, rms)
+    nn, d, rms = _final_refit(p, nn, d, xi_m, rms)
     p = full
     h = p @ nn + d
     inl = np.abs(h) <= xi_m
@@ -300,6 +312,47 @@ def ground_plane(points: np.ndarray, xi_m: float, up_hint: np.ndarray | None = N
     elif off.any() and np.mean(h[off] < 0) > 0.5:
         nn, d = -nn, -d
     return GroundPlane(nn, float(d), tau, n_in, iters, rms, n0, source, history)
+
+
+def local_layer_sigma(points: np.ndarray, plane: GroundPlane, cell_m: float, window_m: float,
+                      min_points: int = 30) -> np.ndarray:
+    """Per point, the ground layer's robust noise sigma (m) in its cell of the ground plane.
+
+    points: (N, 3) metres. cell_m: cell size in the plane (m). window_m: first search depth below the plane (m).
+    Depth noise grows with range (Z^2 for stereo), so the ground seen far out is a thicker layer
+    than the ground beside the truck; one global thickness either cuts into the truck or leaves
+    far noise standing as clutter. Only points BELOW the plane are used: nothing stands under the
+    ground, so walls, wheels and clutter in a cell do not inflate its sigma (half-normal: sigma =
+    1.4826 x the median depth below the plane). The window follows each cell's sigma (5 sigma, a
+    few passes: a window that truncates the layer reads it thinner).
+    Cells with fewer than ``min_points`` points below the plane get the median sigma of the cells.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    h = p @ plane.normal + plane.offset
+    e1, e2 = _plane_axes(plane.normal)
+    u, v = p @ e1, p @ e2
+    ku = np.floor((u - u.min()) / cell_m).astype(np.int64)
+    kv = np.floor((v - v.min()) / cell_m).astype(np.int64)
+    key = ku * (int(kv.max()) + 1) + kv
+    _, inv = np.unique(key, return_inverse=True)
+    n_cells = int(inv.max()) + 1
+    win = np.full(n_cells, float(window_m))
+    sigma = np.full(n_cells, np.nan)
+    for _ in range(4):
+        below = (h < 0) & (h >= -win[inv])
+        cnt = np.bincount(inv[below], minlength=n_cells)
+        # Per-cell median of the depth below the plane: sort by (cell, depth) once.
+        idx = np.flatnonzero(below)
+        order = idx[np.lexsort((-h[idx], inv[idx]))]
+        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        ok = cnt >= min_points
+        med = np.full(n_cells, np.nan)
+        med[ok] = -h[order[starts[ok] + cnt[ok] // 2]]
+        sigma = 1.4826 * med
+        fill = float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else float(window_m) / 4
+        sigma = np.where(np.isfinite(sigma), sigma, fill)
+        win = np.maximum(5.0 * sigma, float(window_m))
+    return sigma[inv]
 
 
 def remove_ground(points: np.ndarray, plane: GroundPlane, thickness_m: float) -> np.ndarray:

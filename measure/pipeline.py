@@ -44,6 +44,8 @@ class MeasureConfig:
     ground_noise_band: float = 2.5           # ξ >= this x the ground layer's measured robust sigma (0 = off)
     ground_noise_thickness: float = 3.0      # d_h >= this x the ground layer's measured robust sigma
     ground_noise_max_res: float = 12.0       # ... but a noise-widened band stays <= this x resolution
+    ground_local_thickness: float = 3.0      # also remove ground up to this x its local (per-cell) sigma (0 = off)
+    ground_cell_res: float = 40.0            # cell size of that local sigma, x resolution
     # Ground removal thickness d_h (paper: 3–4 x resolution, 0.07 m at theirs).
     ground_thickness_res: float = 3.5
     ground_thickness_m: float | None = None
@@ -211,12 +213,18 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     tvec = np.array([0.0, 0.0, g.plane.offset])
     xyz_g = above @ R.T + tvec     # Eqs. 5-6
     centre_xy = None if centre is None else (R @ centre + tvec)[:2]
-    truck, filt, eps, cstats = _truck_points(above, xyz_g, centre_xy, cfg, res, timings, source)
+    truck, in_truck, filt, eps, cstats = _truck_points(above, xyz_g, centre_xy, cfg, res, timings, source)
+    # The noise that blurs the truck's own surfaces is the ground layer's where the truck stands: the
+    # whole ground's RMS is dominated by far, noisier ground and would smooth the roof into the walls.
+    noise_m = g.plane.rms_m
+    if g.local_sigma is not None:
+        noise_m = float(min(noise_m, np.median(g.local_sigma[g.keep][in_truck])))
+    g.noise_at_truck_m = noise_m
 
     t = time.perf_counter()
     dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
                            roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap)
-    dims = measure_dimensions(truck, res, noise_m=g.plane.rms_m, config=dcfg, rng=rng)
+    dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
 
@@ -273,6 +281,8 @@ class _Ground:
     layer_sigma: float
     contrast: float
     keep: np.ndarray      # (N,) bool: points above the ground layer
+    local_sigma: np.ndarray | None = None   # (N,) the ground layer's sigma in each point's cell (m)
+    noise_at_truck_m: float | None = None   # the noise used for the truck's surfaces (m)
 
     def record(self) -> dict:
         """measurement.json's ``ground_plane``."""
@@ -281,12 +291,12 @@ class _Ground:
                 "inlier_rate": plane.inlier_rate, "n_inliers": plane.n_inliers, "rms_m": plane.rms_m, "iterations": plane.iterations,
                 "initial_normal": plane.initial_normal, "initial_normal_source": plane.initial_normal_source,
                 "n_above_ground": int(self.keep.sum()), "layer_contrast": self.contrast, "layer_sigma_m": self.layer_sigma,
-                "band_xi_m": self.xi, "n_removed": int((~self.keep).sum())}
+                "band_xi_m": self.xi, "n_removed": int((~self.keep).sum()), "noise_at_truck_m": self.noise_at_truck_m}
 
 
 def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str) -> _Ground:
     """Algorithm 1 with the band widened to a noisy layer's own thickness; StageError when there is no ground."""
-    from measure.ground import ground_plane
+    from measure.ground import ground_plane, local_layer_sigma
 
     xi = cfg.ground_band_m or cfg.ground_band_res * res
     d_h = cfg.ground_thickness_m or cfg.ground_thickness_res * res
@@ -318,14 +328,27 @@ def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str)
     n_next = max(int(((hgt > xi) & (hgt <= 3 * xi)).sum()), int(((hgt < -xi) & (hgt >= -3 * xi)).sum()), 1)
     contrast = n_band / n_next
     if contrast < cfg.min_ground_contrast:
+        thick = ""
+        if cfg.ground_band_m is None and cfg.ground_noise_band * layer_sigma > cfg.ground_noise_max_res * res:
+            # Say why: a layer this thick for its point spacing is depth noise, not a blob.
+            thick = (f"; the layer is {1000 * layer_sigma:.3g} mm thick (robust sigma), {layer_sigma / res:.1f} x the point "
+                     "spacing: the depth is too noisy there (plain, untextured ground or a far range) to place the ground")
         raise StageError("measure", f"{source}: no ground plane (the densest layer holds {n_band} points, only {contrast:.2f} x its neighbouring layers; "
-                                    f"a ground needs >= {cfg.min_ground_contrast:g} x)")
-    return _Ground(plane, xi, d_h, layer_sigma, contrast, keep=hgt > d_h)   # remove_ground(p, plane, d_h), reusing the heights
+                                    f"a ground needs >= {cfg.min_ground_contrast:g} x{thick})")
+    keep = hgt > d_h   # remove_ground(p, plane, d_h), reusing the heights
+    local = None
+    if cfg.ground_local_thickness > 0:
+        # Far ground is a thicker layer (stereo depth noise grows with Z^2): remove it by its own
+        # thickness, cell by cell, so that it does not stand as clutter around the truck.
+        local = local_layer_sigma(p, plane, cfg.ground_cell_res * res, 8 * xi)
+        keep &= hgt > cfg.ground_local_thickness * local
+    return _Ground(plane, xi, d_h, layer_sigma, contrast, keep=keep, local_sigma=local)
 
 
 def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfig, res: float, timings: dict,
                   source: str):
-    """Algorithm 2 and the truck filters: (truck points in the ground frame, the TruckFilter, ε in metres, cluster stats).
+    """Algorithm 2 and the truck filters: (truck points in the ground frame, their mask over ``above``, the
+    TruckFilter, ε in metres, cluster stats).
 
     above: points above the ground (input frame); xyz_g: the same in the ground frame. Adds 'fof' and 'truck' to timings.
     """
@@ -352,9 +375,9 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
     else:
         parts = [chosen]
     cstats["merged_labels"] = parts
-    truck = xyz_g[np.isin(labels, parts)]
+    in_truck = np.isin(labels, parts)
     timings["truck"] = time.perf_counter() - t
-    return truck, filt, eps, cstats
+    return xyz_g[in_truck], in_truck, filt, eps, cstats
 
 
 def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_rel_sigma: dict | None,
