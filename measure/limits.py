@@ -23,7 +23,6 @@ interval exceeds it, *within* when even the high end does not, and *undecided* o
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import tomllib
@@ -32,6 +31,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+from stereo_recon.core.config import read_table_file
 from stereo_recon.core.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
@@ -114,26 +114,7 @@ def load_regulation(name_or_path: str | Path = DEFAULT_REGULATION) -> Regulation
 
 
 def _read_table(path: Path) -> Any:
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".toml":
-            with open(path, "rb") as f:
-                return tomllib.load(f)
-        raw = path.read_text(encoding="utf-8")
-        if suffix == ".json":
-            return json.loads(raw)
-        if suffix in (".yaml", ".yml"):
-            import yaml
-
-            return yaml.safe_load(raw)
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read regulation file ({err.strerror or err})") from err
-    except UnicodeDecodeError as err:
-        raise ConfigError(f"{path}: regulation file is not UTF-8 text") from err
-    except Exception as err:  # tomllib/json/yaml parse errors have no common base class
-        msg = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise ConfigError(f"{path}: cannot parse regulation file: {msg}") from err
-    raise ConfigError(f"{path}: unsupported regulation file type {suffix!r}; use {'/'.join(_SUFFIXES)}")
+    return read_table_file(path, "regulation file", _SUFFIXES)
 
 
 def _text(value: Any, where: str, key: str, *, required: bool = True) -> str:

@@ -53,7 +53,7 @@ def reconstruct(source_path, rig, out_dir, config: ReconstructConfig = Reconstru
                 calib_path=None, progress: ProgressFn | None = None) -> dict:
     """Reconstruct a coloured point cloud and camera trajectory from a stereo video.
 
-    source_path: side-by-side video or image folder (``video.open_stereo_source``).
+    source_path: side-by-side video or image folder (``video.open_stereo_source``), or an opened ``video.StereoSource``.
     rig: ``calib.rig.StereoRig`` (scaled to the frames when the aspect matches).
     out_dir: output folder (cloud.ply, poses.txt, run.json[, mesh.ply]); written atomically.
     calib_path: the calibration file, recorded with its sha256 in run.json.

@@ -93,6 +93,20 @@ class StereoSource:
             raise InputError(f"{self.path}: frame range starts at {self.start} but the source has "
                              f"{self.frame_count} frames")
 
+    def select(self, frame_range: tuple[int, int | None] | None = None, step: int = 1, fps: float | None = None,
+               max_consecutive_bad: int | None = None) -> "StereoSource":
+        """This source with another frame range, step, frame rate or bad-frame limit, without opening it again.
+
+        The arguments mean what they mean for ``open_stereo_source``; the container is not read again.
+        """
+        import copy
+
+        out = copy.copy(self)
+        StereoSource.__init__(out, self.path, fps or self.fps, self.eye_size, self.frame_count, frame_range, step)
+        if max_consecutive_bad is not None and hasattr(out, "max_consecutive_bad"):
+            out.max_consecutive_bad = int(max_consecutive_bad)
+        return out
+
     def selected_indices(self) -> range:
         """The frame indices this source will try to yield (range and step applied)."""
         stop = self.frame_count if self.stop is None else min(self.stop, self.frame_count or self.stop)

@@ -204,7 +204,7 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
         else:
             if config.resume:   # nothing to resume in a new folder: no warning for that
                 (log.warning if final.root.exists() else log.info)("resume: %s; reconstructing again", problem)
-            stages["reconstruct"] = _reconstruct_stage(video, rig, tmp, rcfg, calib, progress)
+            stages["reconstruct"] = _reconstruct_stage(source, rig, tmp, rcfg, calib, progress)
         result, stages["measure"], failure = _measure_stage(paths, final, config, checks, progress)
         summary = {
             "video": str(video), "calib": str(calib), "out_dir": str(final.root),
@@ -260,13 +260,15 @@ def _measure_stage(paths: RunPaths, final: RunPaths, config: RunConfig, checks: 
         raise StageError("measure", f"{type(err).__name__}: {err}") from err
 
 
-def _reconstruct_stage(video: Path, rig, out: Path, rcfg, calib, progress) -> dict:
-    """Run ``reconstruct`` into ``out`` reporting to ``progress``; a library failure is named as the stage's."""
+def _reconstruct_stage(source, rig, out: Path, rcfg, calib, progress) -> dict:
+    """Run ``reconstruct`` into ``out`` reporting to ``progress``; a library failure is named as the stage's.
+
+    source: the recording as opened for its checks (``video.StereoSource``): reconstruct does not open it again."""
     from stereo_recon.reconstruct import reconstruct
 
     t = time.perf_counter()
     try:
-        reconstruct(video, rig, out, rcfg, calib_path=Path(calib) if Path(str(calib)).exists() else None,
+        reconstruct(source, rig, out, rcfg, calib_path=Path(calib) if Path(str(calib)).exists() else None,
                     progress=progress)
     except StereoReconError:
         raise

@@ -17,27 +17,44 @@ from stereo_recon.core.errors import ConfigError
 SUFFIXES = (".toml", ".yaml", ".yml")
 
 
-def read_config_file(path: str | os.PathLike) -> dict:
-    """The mapping in a .toml/.yaml/.yml file; ConfigError (one line, naming the file) when missing or unparsable."""
+def read_table_file(path: str | os.PathLike, what: str = "config", suffixes: tuple[str, ...] = (".toml", ".yaml", ".yml")) -> Any:
+    """The data in a .toml/.yaml/.yml (or, when listed in ``suffixes``, .json) file.
+
+    what: what the file is, named in errors ("config", "regulation file"). Raises ConfigError (one line,
+    naming the file) when it is missing, unreadable, not UTF-8, of another type or unparsable.
+    """
     p = Path(path)
+    suffix = p.suffix.lower()
     if not p.is_file():
-        raise ConfigError(f"{p}: config file not found")
+        raise ConfigError(f"{p}: {what} not found")
+    if suffix not in suffixes:
+        raise ConfigError(f"{p}: {what} must be {', '.join(suffixes[:-1])} or {suffixes[-1]}")
     try:
-        if p.suffix.lower() == ".toml":
+        raw = p.read_text(encoding="utf-8")
+    except OSError as err:
+        raise ConfigError(f"{p}: cannot read {what} ({err.strerror or err})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: {what} is not UTF-8 text") from None
+    try:
+        if suffix == ".toml":
             import tomllib
 
-            data = tomllib.loads(p.read_text())
-        elif p.suffix.lower() in (".yaml", ".yml"):
-            import yaml
+            return tomllib.loads(raw)
+        if suffix == ".json":
+            import json
 
-            data = yaml.safe_load(p.read_text()) or {}
-        else:
-            raise ConfigError(f"{p}: config must be .toml, .yaml or .yml")
-    except ConfigError:
-        raise
-    except Exception as err:
-        raise ConfigError(f"{p}: cannot parse config ({' '.join(str(err).split())[:160]})") from None
-    return data
+            return json.loads(raw)
+        import yaml
+
+        return yaml.safe_load(raw)
+    except Exception as err:  # tomllib/json/yaml parse errors have no common base class
+        raise ConfigError(f"{p}: cannot parse {what} ({' '.join(str(err).split())[:160]})") from None
+
+
+def read_config_file(path: str | os.PathLike) -> dict:
+    """The mapping in a .toml/.yaml/.yml config file (empty YAML: {}); ConfigError naming the file otherwise."""
+    data = read_table_file(path, "config file")
+    return {} if data is None else data
 
 
 def known_keys(data: Any, cls: type, where: str, what: str, section: str | None = None) -> dict:

@@ -10,7 +10,7 @@ from stereo_recon.disparity import DisparityConfig, disparity_range_for_depth, p
 from stereo_recon.core.errors import StageError
 from stereo_recon.reconstruct_config import ReconstructConfig, resolved_depth_max_m
 from stereo_recon.stages.state import Setup, rot4
-from stereo_recon.video import open_stereo_source, validate_against_rig
+from stereo_recon.video import StereoSource, open_stereo_source, validate_against_rig
 
 log = logging.getLogger(__name__)
 
@@ -32,13 +32,17 @@ def fit_rig(source, rig, config: ReconstructConfig, calib_path=None):
 def open_input(source_path, rig, config: ReconstructConfig, clock, calib_path=None) -> Setup:
     """Open the stereo source and derive what every later stage needs from it and its rig.
 
-    source_path: side-by-side video or image folder (``video.open_stereo_source``); rig:
+    source_path: side-by-side video or image folder (``video.open_stereo_source``), or a source already
+    opened (``video.StereoSource``; the config's range and step are applied to it); rig:
     ``calib.rig.StereoRig``; clock: the run's ``Stopwatch``; calib_path: the calibration file (messages).
     Raises StageError when the selected range holds fewer than ``config.min_frames`` frames.
     """
     c = config
     with clock.stage("open"):
-        source = open_stereo_source(source_path, c.frame_range, c.step, c.fps, c.max_consecutive_bad)
+        if isinstance(source_path, StereoSource):   # opened by the caller (the run's recording checks): not again
+            source = source_path.select(c.frame_range, c.step, c.fps, c.max_consecutive_bad)
+        else:
+            source = open_stereo_source(source_path, c.frame_range, c.step, c.fps, c.max_consecutive_bad)
         rig = fit_rig(source, rig, c, calib_path)
         rect = rig.rectification(alpha=0.0)
         f_px, B = rect.focal_px, rect.baseline_m
