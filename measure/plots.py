@@ -165,6 +165,17 @@ def _annotate_edge(ax, p: np.ndarray, q: np.ndarray, centre: np.ndarray, text: s
             color=_BOX_COLOUR, bbox=dict(facecolor="white", edgecolor="none", alpha=0.85, pad=1.0))
 
 
+def _finish_view(fig, ax, path, title: str, xlabel: str, ylabel: str) -> Path:
+    """Equal axes, labels, title, grid and the legend outside the plot; saved atomically to ``path``."""
+    ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    fig.legend(loc="outside right upper", fontsize=8, markerscale=8, framealpha=0.9)
+    return _save_atomic(fig, path)
+
+
 def plot_top_view(path: str | os.PathLike, xy_m, rect_corners_xy_m, length_m: float, width_m: float,
                   units: str = "m") -> Path:
     """Top view: truck points projected on the ground, the fitted rectangle, length and width.
@@ -196,13 +207,7 @@ def plot_top_view(path: str | os.PathLike, xy_m, rect_corners_xy_m, length_m: fl
     lo, hi = extent.min(axis=0) - 3.5 * offset, extent.max(axis=0) + 3.5 * offset
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel(f"x ({units})")
-    ax.set_ylabel(f"y ({units})")
-    ax.set_title("top view (ground plane)")
-    ax.grid(alpha=0.3)
-    fig.legend(loc="outside right upper", fontsize=8, markerscale=8, framealpha=0.9)
-    return _save_atomic(fig, path)
+    return _finish_view(fig, ax, path, "top view (ground plane)", f"x ({units})", f"y ({units})")
 
 
 def plot_side_view(path: str | os.PathLike, xz_m, height_m: float, units: str = "m") -> Path:
@@ -232,10 +237,4 @@ def plot_side_view(path: str | os.PathLike, xz_m, height_m: float, units: str = 
             fontsize=10, color=_BOX_COLOUR)
     ax.set_xlim(x0 - pad, x1 + 2.2 * pad)
     ax.set_ylim(-pad, float(height_m) + pad * 1.5)
-    ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel(f"along the length axis ({units})")
-    ax.set_ylabel(f"height above ground ({units})")
-    ax.set_title("side view")
-    ax.grid(alpha=0.3)
-    fig.legend(loc="outside right upper", fontsize=8, markerscale=8, framealpha=0.9)
-    return _save_atomic(fig, path)
+    return _finish_view(fig, ax, path, "side view", f"along the length axis ({units})", f"height above ground ({units})")
