@@ -336,18 +336,22 @@ def local_layer_sigma(points: np.ndarray, plane: GroundPlane, cell_m: float, win
     key = ku * (int(kv.max()) + 1) + kv
     _, inv = np.unique(key, return_inverse=True)
     n_cells = int(inv.max()) + 1
+    # Depths below the plane, sorted once by (cell, depth): each pass then only counts, per cell,
+    # the depths inside its window and takes the middle one.
+    neg = np.flatnonzero(h < 0)
+    cell, depth = inv[neg], -h[neg]
+    order = np.lexsort((depth, cell))
+    cell, depth = cell[order], depth[order]
+    starts = np.searchsorted(cell, np.arange(n_cells))
+    span = float(depth.max()) + 1.0 if len(depth) else 1.0
+    combined = cell * span + depth          # sorted: cell first, then depth
     win = np.full(n_cells, float(window_m))
-    sigma = np.full(n_cells, np.nan)
+    sigma = np.full(n_cells, float(window_m) / 4)
     for _ in range(4):
-        below = (h < 0) & (h >= -win[inv])
-        cnt = np.bincount(inv[below], minlength=n_cells)
-        # Per-cell median of the depth below the plane: sort by (cell, depth) once.
-        idx = np.flatnonzero(below)
-        order = idx[np.lexsort((-h[idx], inv[idx]))]
-        starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        cnt = np.searchsorted(combined, np.arange(n_cells) * span + win, side="right") - starts
         ok = cnt >= min_points
         med = np.full(n_cells, np.nan)
-        med[ok] = -h[order[starts[ok] + cnt[ok] // 2]]
+        med[ok] = depth[starts[ok] + cnt[ok] // 2]
         sigma = 1.4826 * med
         fill = float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else float(window_m) / 4
         sigma = np.where(np.isfinite(sigma), sigma, fill)
