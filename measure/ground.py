@@ -166,6 +166,13 @@ def _plane_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(n, e1)
 
 
+def _cell_keys(u: np.ndarray, v: np.ndarray, cell_m: float) -> np.ndarray:
+    """One int64 key per point for its square cell of ``cell_m`` (m) in plane coordinates (u, v)."""
+    ku = np.floor((u - u.min()) / cell_m).astype(np.int64)
+    kv = np.floor((v - v.min()) / cell_m).astype(np.int64)
+    return ku * (int(kv.max()) + 1) + kv
+
+
 def _cell_median_refit(pts: np.ndarray, n: np.ndarray, d: float, cell_m: float, rms: float) -> tuple[np.ndarray, float, float]:
     """Refit the plane to per-cell median heights (cells of ``cell_m`` in the plane).
 
@@ -175,9 +182,7 @@ def _cell_median_refit(pts: np.ndarray, n: np.ndarray, d: float, cell_m: float, 
     """
     e1, e2 = _plane_axes(n)
     u, v, r = pts @ e1, pts @ e2, pts @ n + d
-    ku = np.floor((u - u.min()) / cell_m).astype(np.int64)
-    kv = np.floor((v - v.min()) / cell_m).astype(np.int64)
-    key = ku * (kv.max() + 1) + kv
+    key = _cell_keys(u, v, cell_m)
     order = np.lexsort((r, key))
     ks = key[order]
     starts = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
@@ -330,11 +335,7 @@ def local_layer_sigma(points: np.ndarray, plane: GroundPlane, cell_m: float, win
     p = np.asarray(points, dtype=np.float64)
     h = p @ plane.normal + plane.offset
     e1, e2 = _plane_axes(plane.normal)
-    u, v = p @ e1, p @ e2
-    ku = np.floor((u - u.min()) / cell_m).astype(np.int64)
-    kv = np.floor((v - v.min()) / cell_m).astype(np.int64)
-    key = ku * (int(kv.max()) + 1) + kv
-    _, inv = np.unique(key, return_inverse=True)
+    _, inv = np.unique(_cell_keys(p @ e1, p @ e2, cell_m), return_inverse=True)
     n_cells = int(inv.max()) + 1
     # Depths below the plane, sorted once by (cell, depth): each pass then only counts, per cell,
     # the depths inside its window and takes the middle one.
@@ -346,7 +347,6 @@ def local_layer_sigma(points: np.ndarray, plane: GroundPlane, cell_m: float, win
     span = float(depth.max()) + 1.0 if len(depth) else 1.0
     combined = cell * span + depth          # sorted: cell first, then depth
     win = np.full(n_cells, float(window_m))
-    sigma = np.full(n_cells, float(window_m) / 4)
     for _ in range(4):
         cnt = np.searchsorted(combined, np.arange(n_cells) * span + win, side="right") - starts
         ok = cnt >= min_points

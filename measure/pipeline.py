@@ -219,7 +219,6 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     noise_m = g.plane.rms_m
     if g.local_sigma is not None:
         noise_m = float(min(noise_m, np.median(g.local_sigma[g.keep][in_truck])))
-    g.noise_at_truck_m = noise_m
 
     t = time.perf_counter()
     dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
@@ -238,7 +237,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     return Measurement(
         length_m=float(dims["length_m"]), width_m=float(dims["width_m"]), height_m=float(dims["height_m"]),
         uncertainty_m=dims["uncertainty_m"], rules=dims["rules"], bandwidths_m=dims["bandwidths_m"],
-        ground=g.record(), clusters=cstats, parameters=params, timings_s=timings, n_points=len(p),
+        ground=g.record(noise_m), clusters=cstats, parameters=params, timings_s=timings, n_points=len(p),
         truck_xyz_ground=truck, frame_rotation=R, frame_translation=tvec, details=dims,
     )
 
@@ -282,16 +281,15 @@ class _Ground:
     contrast: float
     keep: np.ndarray      # (N,) bool: points above the ground layer
     local_sigma: np.ndarray | None = None   # (N,) the ground layer's sigma in each point's cell (m)
-    noise_at_truck_m: float | None = None   # the noise used for the truck's surfaces (m)
 
-    def record(self) -> dict:
-        """measurement.json's ``ground_plane``."""
+    def record(self, noise_at_truck_m: float) -> dict:
+        """measurement.json's ``ground_plane``; noise_at_truck_m: the noise used for the truck's surfaces (m)."""
         plane = self.plane
         return {"normal": plane.normal, "offset_m": plane.offset, "equation": "normal . p + offset_m = 0 (normal points up)",
                 "inlier_rate": plane.inlier_rate, "n_inliers": plane.n_inliers, "rms_m": plane.rms_m, "iterations": plane.iterations,
                 "initial_normal": plane.initial_normal, "initial_normal_source": plane.initial_normal_source,
                 "n_above_ground": int(self.keep.sum()), "layer_contrast": self.contrast, "layer_sigma_m": self.layer_sigma,
-                "band_xi_m": self.xi, "n_removed": int((~self.keep).sum()), "noise_at_truck_m": self.noise_at_truck_m}
+                "band_xi_m": self.xi, "n_removed": int((~self.keep).sum()), "noise_at_truck_m": noise_at_truck_m}
 
 
 def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str) -> _Ground:
