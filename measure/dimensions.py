@@ -46,9 +46,10 @@ class DimensionConfig:
                                        # they are this many times what the wall's own scatter puts there
     shoulder_min_mass: float = 0.01    # ... and at least this share of the points (a flatbed's deck edge
                                        # and cab beside its narrower load: 1-2 %). 1.5 and 0.01 (were 2.0
-                                       # and 0.02) measured on 59 tuning clouds: width mean 5.56 -> 5.32 %
-                                       # (a flatbed -10.1 -> -3.7 %, another -7.1 -> -0.2 %, a tanker -4.4 ->
-                                       # -0.7 %; two boxes 0.0 -> +1.2 %); the 20 Table 2 clouds unchanged
+                                       # and 0.02) measured on 59 tuning clouds: width mean 5.62 -> 5.38 %
+                                       # (flatbeds -10.1 -> -3.6 % and -7.1 -> -0.2 %, a tanker -4.3 -> -0.6 %,
+                                       # a box -5.8 -> -2.2 %; two boxes 0.0 -> +1.2 %); 20 Table 2 clouds
+                                       # 0.723 -> 0.719 % (truck 5's width -2.5 -> +2.3 %)
     bootstrap: int = 30                # Poisson-bootstrap replicates for the uncertainties
     grid_bins: int = 4096              # bins over a projection's range (capped resolution of the KDE)
 
@@ -223,8 +224,8 @@ def refine_heading(xy: np.ndarray, u1: np.ndarray, resolution_m: float, max_turn
     sum of squared counts of the width-direction histogram (bins of half the spacing), maximised
     over turns within ±max_turn_deg (coarse grid of 0.25 deg, then fine). Returns (unit axis, turn in degrees).
     The search reaches 20 deg: a dark, sparsely seen body with dense clumps at two opposite corners
-    put PCA 15 deg off the walls (a full-scale semi: L +7.4 %, W +10.6 % with a 6 deg search, +1.0 %
-    and +1.7 % with 20 deg; the other 58 tuning clouds within 0.1 % but one, W -4.4 -> -1.5 %).
+    put PCA 15 deg off the walls (a full-scale semi: L +7.4 %, W +10.6 % with a 6 deg search, -2.2 %
+    and +1.8 % with 20 deg; the other 58 tuning clouds unchanged).
     """
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) > 100_000:
