@@ -7,7 +7,7 @@ dimension the disparity error k (px) that would put the truth exactly at the edg
 
     k = sqrt(max(0, (|error| / 2)^2 - sigma_measurement^2 - (rel_floor x value)^2)) / e_Z
 
-with e_Z = Z^2 / (f B) from run.json (``depth_geometry``). The model's k is the q-quantile (default 90 %)
+with e_Z = Z^2 / (f B) from run.json, as the model itself computes it (``depth_sigma_m``). The model's k is the q-quantile (default 90 %)
 of those, per dimension and depth mode (rig baseline or motion stereo). Runs only from tuning seeds and
 tuning scenes: never the evaluation seed or the external renders.
 
@@ -26,22 +26,21 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from measure.cloud_io import read_cloud  # noqa: E402
+from measure.limits import DIMENSIONS as DIMS  # noqa: E402
 from measure.pipeline import MeasureConfig, measure_points  # noqa: E402
-from measure.quality import face_checks  # noqa: E402
+from measure.quality import _CHECK_DIMENSIONS, face_checks  # noqa: E402
 from stereo_recon.app.pipeline import RECONSTRUCTION_REL_SIGMA, _camera_centres  # noqa: E402
-from stereo_recon.app.uncertainty import ReconstructionErrorModel, depth_geometry  # noqa: E402
-
-DIMS = ("length", "width", "height")
-GATE = {"faces_length": "length", "faces_width": "width", "faces_height": "height"}
+from stereo_recon.app.uncertainty import ReconstructionErrorModel, depth_sigma_m  # noqa: E402
 
 
 def needed_k(run: Path, scene: Path) -> dict | None:
     """{mode, Z_m, e_z, k: {dim: px or None}, err: {dim: %}} for one run; None when it cannot be measured."""
     meta = json.loads((run / "run.json").read_text())
-    geo = depth_geometry(meta)
+    sigma, parts = depth_sigma_m(meta)
     truth = json.loads((scene / "truth.json").read_text())
-    if geo is None or not (run / "cloud.ply").is_file():
+    if sigma is None or not (run / "cloud.ply").is_file():
         return None
+    geo, e_z = parts["geometry"], parts["e_z_m_per_px"]
     cams = _camera_centres(run / "poses.txt")
     try:
         m = measure_points(read_cloud(run / "cloud.ply"), MeasureConfig(), up_hint=meta.get("up"),
@@ -49,12 +48,8 @@ def needed_k(run: Path, scene: Path) -> dict | None:
     except Exception as err:  # noqa: BLE001 - a failed measurement is reported and skipped
         print(f"  {run}: not measured ({str(err)[:80]})")
         return None
-    refused = {GATE[c["name"]] for c in face_checks(m) if c["status"] == "fail" and c["name"] in GATE}
-    base = ReconstructionErrorModel()
-    wide = geo["motion_stereo"]
-    B = base.wide_baseline_rel * geo["Z_m"] if wide else geo["baseline_m"]
-    e_z = geo["Z_m"] ** 2 / (geo["focal_px"] * B)
-    out = {"mode": "wide" if wide else "rig", "Z_m": geo["Z_m"], "e_z": e_z, "k": {}, "err": {}}
+    refused = {d for c in face_checks(m) if c["status"] == "fail" for d in _CHECK_DIMENSIONS.get(c["name"], ())}
+    out = {"mode": "wide" if geo["motion_stereo"] else "rig", "Z_m": geo["Z_m"], "e_z": e_z, "k": {}, "err": {}}
     for d in DIMS:
         v, t = getattr(m, f"{d}_m"), truth[f"{d}_m"]
         out["err"][d] = 100 * (v / t - 1)
