@@ -12,7 +12,7 @@ edge: +2 cm on full-scale walls, 8 paths: 0-1 cm), and checked against the rig's
 median ratio of the rig's depth to the wide depth measures odometry's scale (the wide baselines
 are odometry's steps); ``reconstruct`` rescales the trajectory by it.
 
-Used by ``reconstruct`` for far scenes (``ReconstructConfig.far_scene_disparity_px``) or on request
+Used by ``reconstruct`` for far scenes (``ReconstructConfig.far_scene_depth_baselines``) or on request
 (``motion_stereo``). On model trucks at 1.5-2 m it does not help the width (their narrow walls come
 out 1-2 mm inside), so there the rig's depth is fused.
 

@@ -77,14 +77,22 @@ class ReconstructConfig:
     # their widths got worse (2.42 % mean error instead of 1.35 %: the narrow walls come out 1-2 mm
     # inside), heights better (0.17 % instead of 0.48 %).
     motion_stereo: MotionStereoConfig | None = None
-    # Far scenes: when the first frame's median disparity is below this (px; the rig then resolves
-    # its depth to worse than 1/16 per pixel - a full-scale truck from 8-15 m with the ZED2 gives 5-8 px,
-    # a model truck from 1.5-2 m 30-45 px) the run uses motion stereo (the default config unless
-    # motion_stereo is set) and feeds VO the dense depth of every frame (sparse stereo on 5-8 px of
-    # disparity left VO's scale 0.28 % short, dense 0.18 %). vo and gt back-ends; None = never.
-    # Measured (``stereo-recon bench``, the two rendered full-scale presets, VO): width -0.97 % / -3.04 %,
-    # length and height within 0.14 %, instead of +2.85 % / -3.56 % and 0.5-0.8 % with the rig's depth.
-    far_scene_disparity_px: float | None = 16.0
+    # Far scenes: when the first view's median depth exceeds this many rig baselines, the run uses
+    # motion stereo (the default config unless motion_stereo is set) and feeds VO the dense depth of
+    # every frame (sparse stereo on 5-8 px of disparity left VO's scale 0.28 % short, dense 0.18 %).
+    # vo and gt back-ends; None = never. Why depth in baselines: the wide pair's disparity over the
+    # rig's is baseline_rel x Z / B whatever the resolution, so the switch does not move with it
+    # (14.2 baselines = 36.6 px of rig disparity at HD720's 520 px focal, 18 px at VGA).
+    # Why 14.2: it lies between two tuning sets. Table 2's close orbits (first views at 7.8-14.0
+    # baselines, 37-67 px) measured better on the rig (motion stereo forced on: widths 2.42 % instead
+    # of 1.35 %); 38 model-scale random draws of tuning seeds 2027-2029 flown wider (14.6-38.6 baselines),
+    # re-run with motion stereo, went from 13 "no ground plane" refusals to 1 (and 1 "no truck"), their
+    # mean error from 7.2 % to 2.8 % and their heights from 8.9 % (bias -8.9 %: a plain roof seen at
+    # 15-30 deg sits ~1 px of disparity towards the background, 10 cm too far at 2.3 m) to 2.8 %
+    # (README, issue 12's fourth round). Full scale
+    # (8-15 m, 60-120 baselines) always switches: the two rendered presets' widths -0.97 % / -3.04 %,
+    # lengths and heights within 0.14 %, instead of +2.85 % / -3.56 % and 0.5-0.8 % on the rig's depth.
+    far_scene_depth_baselines: float | None = 14.2
     # Bundle-adjusted poses for the fused views (vo back-end): pycolmap SfM on the fused views and
     # their motion-stereo partners, grafted onto VO's trajectory by a similarity (``graft_poses``).
     # Why: at full scale VO's rotations wander by 0.43 deg rms (over-height preset) in step with

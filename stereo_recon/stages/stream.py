@@ -30,19 +30,23 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class FarScene:
-    """The far-scene decision on the first view: its median disparity (px) and whether it is below the threshold."""
+    """The far-scene decision on the first view: its median disparity (px), its median depth in rig
+    baselines, and whether that depth is beyond the threshold."""
 
     disparity_px: float
+    depth_baselines: float
     far: bool
 
 
-def far_scene(median_depth_m: float, focal_px: float, baseline_m: float, threshold_px: float) -> FarScene | None:
+def far_scene(median_depth_m: float, focal_px: float, baseline_m: float, threshold_baselines: float) -> FarScene | None:
     """Is the scene far for this rig? median_depth_m: the first view's median depth (m); focal_px (px),
-    baseline_m (m): the rectified rig; threshold_px: ``far_scene_disparity_px``. None when the depth is unknown."""
+    baseline_m (m): the rectified rig; threshold_baselines: ``far_scene_depth_baselines``. None when the
+    depth is unknown."""
     if not np.isfinite(median_depth_m):
         return None
     disp_px = focal_px * baseline_m / median_depth_m
-    return FarScene(disp_px, bool(disp_px < threshold_px))
+    z_b = median_depth_m / baseline_m
+    return FarScene(disp_px, z_b, bool(z_b > threshold_baselines))
 
 
 def view_selector(config: ReconstructConfig, mode: str) -> tuple[ViewSelector | None, bool]:
@@ -140,14 +144,16 @@ class _StreamPass:
     def switch_far_scene(self) -> None:
         """Far scene: motion stereo and dense-depth VO from here on (decided on the first view's depth)."""
         med = self.depth_by_view.get(self.keyframes[0], float("nan"))
-        decision = far_scene(med, self.s.focal_px, self.s.baseline_m, self.c.far_scene_disparity_px)
+        decision = far_scene(med, self.s.focal_px, self.s.baseline_m, self.c.far_scene_depth_baselines)
         if decision is None:
             return
         counts = self.ctx.counts
         counts["first_view_disparity_px"] = decision.disparity_px
+        counts["first_view_depth_baselines"] = decision.depth_baselines
         counts["far_scene"] = decision.far
         if decision.far:
-            log.info("far scene (median disparity %.1f px): motion stereo and dense-depth VO", decision.disparity_px)
+            log.info("far scene (median depth %.1f baselines, %.1f px of disparity): motion stereo and dense-depth VO",
+                     decision.depth_baselines, decision.disparity_px)
             self.dense_vo = self.vo is not None
             if self.by_pose and self.motion is None:
                 self.motion = MotionStereoConfig()
@@ -192,7 +198,7 @@ class _StreamPass:
             with ctx.clock.stage("wait_depth"):
                 self.collect(self.pending)
             self.pending = None
-            if self.c.far_scene_disparity_px is not None and self.s.mode in ("vo", "gt"):
+            if self.c.far_scene_depth_baselines is not None and self.s.mode in ("vo", "gt"):
                 self.switch_far_scene()
         with ctx.clock.stage("rectify"):
             # Colour is only needed for the left eye (fusion); the right eye is matched in grey.

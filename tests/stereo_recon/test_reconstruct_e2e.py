@@ -184,7 +184,7 @@ def test_reconstruct_with_visual_odometry(orbit, tmp_path):
     # This small low-resolution scene has ~10 px of disparity, a "far scene" by the default threshold;
     # the fast path on sparse stereo is what is tested here (far scenes: test_reconstruct_synth.py).
     cfg = ReconstructConfig(poses="vo", fps=FPS, depth_min_m=1.0, depth_max_m=4.0, voxel_m=0.02,
-                            far_scene_disparity_px=None)
+                            far_scene_depth_baselines=None)
     man = reconstruct(root / "frames", _rig(), tmp_path / "out", cfg)
     est = read_tum(tmp_path / "out" / "poses.txt", fps=FPS)
     assert len(est) == 48 and man["poses"]["tracking_gaps"] == []

@@ -92,12 +92,18 @@ def test_size_block_map_caps_the_hash_map_and_keeps_a_set_count():
     assert size_block_map(FusionConfig(voxel_m=0.01, depth_max_m=1.0), z, K, 20).block_count is None
 
 
-def test_far_scene_decision_follows_the_rigs_disparity():
-    near = far_scene(1.8, 700.0, 0.12, 16.0)     # a model truck: 46.7 px
-    far = far_scene(10.0, 700.0, 0.12, 16.0)     # a full-scale truck: 8.4 px
-    assert near.disparity_px == pytest.approx(700 * 0.12 / 1.8) and not near.far
-    assert far.disparity_px == pytest.approx(8.4) and far.far
-    assert far_scene(float("nan"), 700.0, 0.12, 16.0) is None
+def test_far_scene_decision_follows_the_depth_in_baselines():
+    """The switch to motion stereo depends on the depth in rig baselines, not on the image size."""
+    z_b = ReconstructConfig().far_scene_depth_baselines
+    close = far_scene(1.4, 520.0, 0.12, z_b)     # a Table 2 orbit (0.8 L): 11.7 baselines, 44.6 px at HD720
+    wide = far_scene(2.3, 520.0, 0.12, z_b)      # a model truck flown at 2 L: 19.2 baselines, 27.1 px
+    full = far_scene(10.0, 520.0, 0.12, z_b)     # a full-scale truck: 83 baselines, 6.2 px
+    assert close.disparity_px == pytest.approx(520 * 0.12 / 1.4) and not close.far
+    assert wide.depth_baselines == pytest.approx(2.3 / 0.12) and wide.far
+    assert full.far
+    # The same orbit at VGA (half the focal, half the disparity) decides the same way.
+    assert far_scene(1.4, 260.0, 0.12, z_b).far is False and far_scene(2.3, 260.0, 0.12, z_b).far is True
+    assert far_scene(float("nan"), 520.0, 0.12, z_b) is None
 
 
 def test_view_selector_choice_by_back_end():
