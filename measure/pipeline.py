@@ -65,6 +65,7 @@ class MeasureConfig:
     min_height_to_width: float = 0.25
     max_height_to_width: float = 4.0
     ambiguity_ratio: float = 0.8             # runner-up volume >= this x the best => refuse to guess
+    min_volume_rel: float = 0.1              # with a centre hint, clusters below this x the largest volume do not compete
     merge_gap_res: float = 15.0              # clusters in line with the truck within this gap join it (a cab across
                                              # the gap to its box); 0 disables (the paper's single cluster)
     # Dimension rules (see measure.dimensions).
@@ -365,7 +366,7 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
         min_width_m=cfg.min_width_res * res, min_height_m=cfg.min_height_res * res,
         min_length_to_width=cfg.min_length_to_width, max_length_to_width=cfg.max_length_to_width,
         min_height_to_width=cfg.min_height_to_width, max_height_to_width=cfg.max_height_to_width,
-        ambiguity_ratio=cfg.ambiguity_ratio,
+        ambiguity_ratio=cfg.ambiguity_ratio, min_volume_rel=cfg.min_volume_rel,
     )
     chosen, cstats = select_truck(xyz_g, labels, filt, centre_xy, source=source)
     if cfg.merge_gap_res > 0:

@@ -192,3 +192,31 @@ def test_ground_thicker_than_point_spacing_is_still_found():
         assert abs(getattr(m, f"{d}_m") - truth[f"{d}_m"]) / truth[f"{d}_m"] < 0.02, (d, getattr(m, f"{d}_m"), truth[f"{d}_m"])
     assert m.ground["layer_sigma_m"] > 0.005
     assert np.degrees(np.arccos(abs(m.ground["normal"] @ up))) < 0.5
+
+
+def test_a_fragment_nearer_the_centre_hint_is_not_taken_for_the_truck():
+    """A 0.2 m scrap beside a 2 m truck, nearer the orbit centre than the truck's footprint: the truck is chosen."""
+    from measure.truck import TruckFilter, select_truck
+
+    rng = np.random.default_rng(16)
+
+    def box(lo, hi, n):
+        p = lo + rng.random((n, 3)) * (np.asarray(hi) - lo)
+        face = rng.integers(0, 3, n)            # put every point on one of the box's faces
+        side = rng.integers(0, 2, n)
+        p[np.arange(n), face] = np.where(side == 1, np.asarray(hi)[face], np.asarray(lo)[face])
+        return p
+
+    truck = box(np.array([0.0, -0.2, 0.0]), np.array([2.0, 0.2, 0.4]), 40_000)
+    scrap = box(np.array([0.9, 0.21, 0.0]), np.array([1.1, 0.29, 0.1]), 1_500)
+    xyz = np.concatenate([truck, scrap])
+    labels = np.r_[np.zeros(len(truck), int), np.ones(len(scrap), int)]
+    filt = TruckFilter(min_points=300, max_points=None, min_length_m=0.05, max_length_m=None, min_width_m=0.01, min_height_m=0.01)
+    hint = np.array([1.0, 0.35])                # 0.06 m from the scrap's footprint, 0.15 m from the truck's
+    chosen, stats = select_truck(xyz, labels, filt, hint)
+    assert len(stats["candidates"]) == 2        # the scrap passes the shape filters ...
+    assert chosen == 0                          # ... but a tenth of the largest volume is no vehicle
+    # A second vehicle of the truck's size still competes, and the nearer one wins.
+    other = truck + [0.0, 0.7, 0.0]
+    xyz2, labels2 = np.concatenate([truck, other]), np.r_[np.zeros(len(truck), int), np.ones(len(other), int)]
+    assert select_truck(xyz2, labels2, filt, np.array([1.0, 0.75]))[0] == 1
