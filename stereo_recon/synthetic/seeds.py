@@ -3,5 +3,7 @@
 A module of its own so that the command line's help texts can name them without importing numpy.
 """
 
-EVALUATION_SEED = 2026  # the seed of the reported figures (README, notes): never tune on it
-TUNING_SEEDS = range(0, 100)  # seeds for tuning and debugging
+# Each report's seed is run once, reported, and is a tuning seed from then on (it has been looked at):
+# 2026-2030 were the reports of issue 12's rounds (README, "What the envelope shows today").
+EVALUATION_SEED = 2031  # the next report's seed: never run, never tuned on
+TUNING_SEEDS = tuple(range(0, 100)) + (2026, 2027, 2028, 2029, 2030)  # seeds for tuning and debugging
