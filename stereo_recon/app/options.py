@@ -16,6 +16,22 @@ def add_pose_options(p: argparse.ArgumentParser) -> None:
                         "that depth, also on near scenes (far scenes get it anyway); vo or gt poses only")
     p.add_argument("--refine-poses", choices=tuple(REFINE_POSES_CHOICES), default="auto",
                    help="bundle-adjust the fused views' VO poses with pycolmap SfM (auto: far scenes only; vo poses)")
+    p.add_argument("--far-scene-baselines", type=_far_scene_baselines, default=None, metavar="Z|off",
+                   help="a scene whose first view's median depth is beyond Z rig baselines is far: motion stereo, "
+                        "dense-depth VO and SfM-refined poses (default 14.2; off: never)")
+
+
+def _far_scene_baselines(text: str):
+    """--far-scene-baselines: a positive number of rig baselines, or 'off' (returned as the string)."""
+    if text.strip().lower() == "off":
+        return "off"
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: a positive number of rig baselines (e.g. 14.2) or 'off'")
+    return value
 
 
 def add_frame_options(p: argparse.ArgumentParser) -> None:
@@ -37,6 +53,9 @@ def reconstruct_overrides(args) -> dict:
     refine = REFINE_POSES_CHOICES[getattr(args, "refine_poses", "auto")]
     if refine is not None:
         overrides["refine_poses_sfm"] = refine
+    far = getattr(args, "far_scene_baselines", None)
+    if far is not None:
+        overrides["far_scene_depth_baselines"] = None if far == "off" else far
     if getattr(args, "frames", None) is not None and isinstance(args.frames, str):   # bench's --frames is a count
         overrides["frame_range"] = parse_frame_range(args.frames)
     if getattr(args, "step", 1) != 1:

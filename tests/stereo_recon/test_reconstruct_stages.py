@@ -106,6 +106,23 @@ def test_far_scene_decision_follows_the_depth_in_baselines():
     assert far_scene(float("nan"), 520.0, 0.12, z_b) is None
 
 
+def test_far_scene_threshold_is_a_command_line_option(capsys):
+    """--far-scene-baselines Z|off sets ReconstructConfig.far_scene_depth_baselines; anything else is a usage error."""
+    import argparse
+
+    from stereo_recon.app.options import add_pose_options, reconstruct_overrides
+
+    p = argparse.ArgumentParser(prog="run")
+    add_pose_options(p)
+    assert "far_scene_depth_baselines" not in reconstruct_overrides(p.parse_args([]))
+    assert reconstruct_overrides(p.parse_args(["--far-scene-baselines", "off"]))["far_scene_depth_baselines"] is None
+    assert reconstruct_overrides(p.parse_args(["--far-scene-baselines", "20"]))["far_scene_depth_baselines"] == 20.0
+    for bad in ("0", "-3", "far"):
+        with pytest.raises(SystemExit):
+            p.parse_args(["--far-scene-baselines", bad])
+        assert "a positive number of rig baselines" in capsys.readouterr().err
+
+
 def test_view_selector_choice_by_back_end():
     sel, by_pose = view_selector(ReconstructConfig(), "vo")
     assert by_pose and sel.config is None and sel.rotation_deg == 18.0
