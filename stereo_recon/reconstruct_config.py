@@ -132,6 +132,8 @@ class ReconstructConfig:
             raise ConfigError(f"fusion_min_width_px={self.fusion_min_width_px}: must be >= 16 or None")
         if self.fusion_depth_max_rel is not None and not self.fusion_depth_max_rel > 1.0:
             raise ConfigError(f"fusion_depth_max_rel={self.fusion_depth_max_rel}: must be > 1 or None")
+        if self.far_scene_depth_baselines is not None and not self.far_scene_depth_baselines > 0:
+            raise ConfigError(f"--far-scene-baselines {self.far_scene_depth_baselines}: must be > 0 (or off)")
         if self.refine_poses_sfm and self.poses != "vo":
             raise ConfigError(f"--refine-poses on: bundle adjustment refines visual odometry's poses (--poses vo), "
                               f"not --poses {self.poses}")

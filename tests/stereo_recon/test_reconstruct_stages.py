@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stereo_recon.core.errors import StageError
+from stereo_recon.core.errors import ConfigError, StageError
 from stereo_recon.fusion import FusionConfig
 from stereo_recon.core.manifest import Stopwatch
 from stereo_recon.motion_stereo import MotionStereoConfig
@@ -117,6 +117,8 @@ def test_far_scene_threshold_is_a_command_line_option(capsys):
     assert "far_scene_depth_baselines" not in reconstruct_overrides(p.parse_args([]))
     assert reconstruct_overrides(p.parse_args(["--far-scene-baselines", "off"]))["far_scene_depth_baselines"] is None
     assert reconstruct_overrides(p.parse_args(["--far-scene-baselines", "20"]))["far_scene_depth_baselines"] == 20.0
+    with pytest.raises(ConfigError, match="far-scene-baselines"):
+        ReconstructConfig(far_scene_depth_baselines=0.0)
     for bad in ("0", "-3", "far"):
         with pytest.raises(SystemExit):
             p.parse_args(["--far-scene-baselines", bad])
