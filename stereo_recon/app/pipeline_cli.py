@@ -123,17 +123,18 @@ def register(sub) -> None:
 
 
 RANDOM_BENCH_HELP = ("with --random K: K random scenes of the operating envelope (stereo_recon.synthetic.envelope), each run through "
-                     "the full pipeline with default settings; writes envelope.md, envelope.json and envelope.png. Seeds 0-99 and "
-                     "those of past reports (2026-2030) are for tuning; the next figures we report come from the evaluation seed "
+                     "the full pipeline with default settings; writes envelope.md, envelope.json and envelope.png. Seeds {tuning} "
+                     "(the latter: past reports' seeds) are for tuning; the next figures we report come from the evaluation seed "
                      "{seed}, never run.")
 
 
 def _add_random_bench_options(c: argparse.ArgumentParser) -> None:
-    from stereo_recon.synthetic.seeds import EVALUATION_SEED
+    from stereo_recon.synthetic.seeds import EVALUATION_SEED, TUNING_SEEDS_TEXT
 
-    c.description = "The paper's Table 2 on rendered model trucks (default), or " + RANDOM_BENCH_HELP.format(seed=EVALUATION_SEED)
+    c.description = "The paper's Table 2 on rendered model trucks (default), or " + RANDOM_BENCH_HELP.format(
+        seed=EVALUATION_SEED, tuning=TUNING_SEEDS_TEXT)
     c.add_argument("--random", type=int, default=None, metavar="K",
-                   help=f"benchmark K random draws of --seed over the operating envelope instead of Table 2 (seeds 0-99 and 2026-2030: "
+                   help=f"benchmark K random draws of --seed over the operating envelope instead of Table 2 (seeds {TUNING_SEEDS_TEXT}: "
                         f"tuning; {EVALUATION_SEED}: evaluation)")
     c.add_argument("--max-frames", type=int, default=None, metavar="N", help="with --random: cap each draw's 60-200 frames at N")
     c.add_argument("--scale-only", choices=("model", "full"), default=None,

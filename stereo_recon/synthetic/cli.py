@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from stereo_recon.synthetic.seeds import EVALUATION_SEED
+from stereo_recon.synthetic.seeds import EVALUATION_SEED, TUNING_SEEDS_TEXT
 
-RANDOM_SEEDS_HELP = f"0-99 and 2026-2030 are for tuning, {EVALUATION_SEED} (EVALUATION_SEED) for the next reported figures"
+RANDOM_SEEDS_HELP = f"{TUNING_SEEDS_TEXT} are for tuning, {EVALUATION_SEED} (EVALUATION_SEED) for the next reported figures"
 PRESET_HELP = ("model-truck (2.1 x 0.38 x 0.38 m, the paper's scale), full-truck (12 x 2.55 x 4.0 m), over-height (4.3 m tall), "
                "two-vehicles, calibration-board (chessboard video), table2:N (N = 1..20, the paper's Table 2 trucks)")
 

@@ -24,8 +24,8 @@ Envelope (each factor drawn independently, ranges in the constants below):
 - scene: sun elevation 20-70 deg with shadows, ground from plain asphalt to busy, 0-10
   distractors, in a third of the draws a second vehicle (shorter, as tall or taller) 1-2 widths away.
 
-Seeds: 0-99 and the seeds of past reports (2026-2030) are for tuning; :data:`EVALUATION_SEED` is kept for the
-next reported figures.
+Seeds: :data:`TUNING_SEEDS` (0-99 and the seeds of past reports) are for tuning; :data:`EVALUATION_SEED` is kept
+for the next reported figures.
 """
 
 from __future__ import annotations
