@@ -13,8 +13,8 @@ median ratio of the rig's depth to the wide depth measures odometry's scale (the
 are odometry's steps); ``reconstruct`` rescales the trajectory by it.
 
 Used by ``reconstruct`` for far scenes (``ReconstructConfig.far_scene_depth_baselines``) or on request
-(``motion_stereo``). On model trucks at 1.5-2 m it does not help the width (their narrow walls come
-out 1-2 mm inside), so there the rig's depth is fused.
+(``motion_stereo``). On model trucks flown close (Table 2's orbits, 0.9-1.7 m: under 14.2 rig baselines) it
+does not help the width (their narrow walls come out 1-2 mm inside), so there the rig's depth is fused.
 
 Frames: every pose is world-from-camera (``conventions``) of a *rectified left* camera, metres;
 the returned depth lives in a rotated copy of the fusion view's camera (same centre), whose pose

@@ -4,7 +4,7 @@ Issue 12's "roofs sagging 3-5 cm when the truck is small in the image". The scen
 (48 frames): a 1.4 m model semi-trailer flown at 2 L, 21 deg above its roof, 28.6 rig baselines away. On its roof,
 rectified SGBM on the 12 cm rig sits about 1 px of disparity towards the background (the roof is a 10 px strip
 whose only edges run along the rows), 10 cm too far at 2.3 m; fused, the roof comes out 5 cm low. The drone's own
-motion gives ~1.6x the rig's disparity there, which far scenes use (``ReconstructConfig.far_scene_depth_baselines``).
+motion gives ~3x the rig's disparity there (0.11 x 28.6 baselines), which far scenes use (``ReconstructConfig.far_scene_depth_baselines``).
 Measured when written: rig only H -16.5 % (-21 sigma); default H +0.7 % (+0.3 sigma).
 """
 
