@@ -154,6 +154,7 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
     core = q_hi - q_lo
     if len(left) and len(right) and right.max() - left.min() >= cfg.wall_min_share * core:
         e0, e1 = float(left.min()), float(right.max())
+        walls = e1 - e0
         sh = _Shoulder(counts, grid, dens, h, noise)
         d = sh.d
         rule = "kde_two_peaks"
@@ -164,12 +165,14 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0)
         if out_lo >= cfg.shoulder_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * sh.wall_tail(e0, -1):
             e0 = min(e0, sh.edge(e0, -1))
             rule = "kde_peaks_plus_outer_shoulder"
-        return e1 - e0, rule, (e0, e1), dens
+        # With a shoulder the walls' own peak-to-peak distance is the other reading (a thin noise tail
+        # outside the walls can pass for a shoulder): returned so that the uncertainty spans both.
+        return e1 - e0, rule, (e0, e1), dens, (walls if rule != "kde_two_peaks" else None)
     if len(right) and right.max() - lo >= cfg.wall_min_share * core:
-        return float(right.max() - lo), "one_peak_plus_extreme", (lo, float(right.max())), dens
+        return float(right.max() - lo), "one_peak_plus_extreme", (lo, float(right.max())), dens, None
     if len(left) and hi - left.min() >= cfg.wall_min_share * core:
-        return float(hi - left.min()), "one_peak_plus_extreme", (float(left.min()), hi), dens
-    return float(extent), "robust_extent", (lo, hi), dens
+        return float(hi - left.min()), "one_peak_plus_extreme", (float(left.min()), hi), dens, None
+    return float(extent), "robust_extent", (lo, hi), dens, None
 
 
 def _length_rule(counts, grid, h, step, cfg: DimensionConfig):
@@ -297,7 +300,7 @@ def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, 
         reps.append(rule_fn(rc, grid, h, step, config)[0])
     return {"value": r[0], "rule": r[1], "edge": r[2], "density": {"grid_m": grid, "density": r[3]},
             "bandwidth": h, "bandwidth_rule": bw_rule, "boot": float(np.std(reps)) if reps else 0.0,
-            "rear_end": r[4] if name == "length" else None}
+            "rear_end": r[4] if name == "length" else None, "other_reading": r[4] if name == "width" else None}
 
 
 def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: float, roof_support: float,
@@ -353,6 +356,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         dens_out[name] = d["density"]
         if name == "length":
             out["rear_end"] = d["rear_end"]
+        else:
+            other_width = d["other_reading"]
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -366,6 +371,14 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     bw_rules["height"] = "max(ground_rms, half_spacing)"
     dens_out["height"] = {"grid_m": hgrid, "density": hdens}
     unc, warnings = _uncertainties(rules, bw, boots, res, noise_m, roof_support, hz)
+    out["width_walls_m"] = other_width
+    if other_width is not None:
+        # Which reading is the truck's is not decided by the data (a cab or deck wider than the box,
+        # or a tail of stray points outside plain walls): the uncertainty spans both (+-2 sigma).
+        gap = abs(out["width_m"] - other_width)
+        unc["width"] = float(np.hypot(unc["width"], gap / 2))
+        warnings.append(f"width {out['width_m']:.3g} m includes a wider part outside the side walls; the walls "
+                        f"alone are {other_width:.3g} m apart (the uncertainty covers both)")
     out["warnings"] = warnings
     out["roof_support"] = roof_support
     out["uncertainty_m"] = unc
