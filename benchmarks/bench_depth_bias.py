@@ -1,0 +1,135 @@
+"""Depth bias per surface: the rig's and the wide pairs' (motion stereo) depth against rendered depth.
+
+Why: a width or height error of the fused cloud comes from the poses, the depth maps, the fusion or
+the measurement. Fusing rendered depth with the true poses through the same ``TSDFFusion`` and
+measuring it gives the truth within 0.3 % (issue 12, fifth round), so what is left is the depth. This
+script says, per surface class, how far each depth map puts the surface along the viewing ray,
+relative to the rendered depth (positive: too far, i.e. side walls inside the truck, roofs low).
+
+Usage (a draw rendered with depth, a run that kept its work folder)::
+
+    stereo-recon synth --random 40 --seed 2027 --depth --out D          # or any synth with --depth
+    stereo-recon reconstruct D/draw_000/video.* --calib D/draw_000/SN*.conf --out R --keep-work
+    python benchmarks/bench_depth_bias.py D/draw_000:R [D/draw_001:R1 ...]
+
+Surface classes, from the rendered point: ``roof`` (within 1 % of H of the truck's top), ``sides``
+(20-80 % of H: side walls, ends, cab), ``ground<1L`` (the ground within one truck length of its centre).
+Per class: median relative depth error over the views (each view's median), and its MAD (%).
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+CLASSES = ("roof", "sides", "ground<1L")
+
+
+def _classes(P: np.ndarray, truth: dict) -> dict:
+    """Masks of the surface classes for world points P (N, 3) on the rendered surfaces."""
+    H, L = truth["height_m"], truth["length_m"]
+    ctr = np.asarray(truth["truck_corners_world_m"], float)[:, :2].mean(axis=0)
+    z = P[:, 2]
+    near = np.linalg.norm(P[:, :2] - ctr, axis=1) < L
+    return {"roof": np.abs(z - H) < 0.01 * H, "sides": (z > 0.2 * H) & (z < 0.8 * H),
+            "ground<1L": (np.abs(z) < 1e-4) & near}
+
+
+def _errors(X_raw: np.ndarray, idx: int, draw: Path, rig, T_wc_gt: np.ndarray, truth: dict) -> dict:
+    """Per class (median relative error, MAD) of points X_raw (N, 3, raw left camera frame, m) of view idx."""
+    import cv2
+
+    uv, _ = cv2.projectPoints(X_raw.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), rig.K1, rig.D1)
+    uv = uv.reshape(-1, 2)
+    g = np.load(draw / "depth" / f"{idx:06d}.npy")
+    ui, vi = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+    ins = (ui >= 0) & (ui < g.shape[1]) & (vi >= 0) & (vi < g.shape[0])
+    z_gt = np.full(len(ui), np.nan)
+    z_gt[ins] = g[vi[ins], ui[ins]]
+    # Same ray: the ratio of z in the raw frame is the ratio of distances along the ray.
+    rel = X_raw[:, 2] / z_gt - 1.0
+    P = (X_raw * (z_gt / X_raw[:, 2])[:, None]) @ T_wc_gt[:3, :3].T + T_wc_gt[:3, 3]
+    out = {}
+    for name, m in _classes(P, truth).items():
+        m = m & np.isfinite(rel)
+        if m.sum() > 100:
+            r = rel[m]
+            out[name] = (float(np.median(r)), float(1.4826 * np.median(np.abs(r - np.median(r)))))
+    return out
+
+
+def _pixels(z: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Points (N, 3) of a z-depth map in its camera frame, m (valid pixels only)."""
+    h, w = z.shape
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    ok = np.isfinite(z) & (z > 0)
+    return np.stack([u[ok], v[ok], np.ones(ok.sum())], 1) @ np.linalg.inv(K).T * z[ok][:, None]
+
+
+def bias(draw: Path, run: Path) -> dict:
+    """{'rig': {class: [(median, MAD) per view]}, 'wide': {...}} for one draw and its kept-work run."""
+    from calib.io import load_rig
+    from stereo_recon.trajectory import read_tum
+
+    truth = json.loads((draw / "truth.json").read_text())
+    meta = json.loads((run / "run.json").read_text())
+    rig = load_rig(glob.glob(str(draw / "SN*.conf"))[0], image_size=tuple(meta["rig"]["image_size"]))
+    R1 = rig.rectification(alpha=0.0).R1          # raw left -> rectified left (the pipeline's camera)
+    K_rect = np.asarray(meta["rig"]["rectified"]["K_rect"], float)
+    gt = read_tum(draw / "poses_gt.txt", fps=float(truth["fps"]))
+    scale = float(meta["counts"].get("motion_stereo_depth_scale", 1.0))
+    views = sorted(int(p.stem) for p in (run / "work" / "depth").glob("*.npy"))
+    wide = {int(a): int(b) for a, b in re.findall(r"motion stereo: view (\d+) with frame (\d+)",
+                                                     (run / "log.txt").read_text())}
+    res: dict = {"rig": {c: [] for c in CLASSES}, "wide": {c: [] for c in CLASSES}}
+    for idx in views:
+        if idx in wide or not wide:  # the fused views (with a partner when there is motion stereo)
+            z = np.load(run / "work" / "depth" / f"{idx:06d}.npy").astype(float)
+            for c, v in _errors(_pixels(z, K_rect) @ R1, idx, draw, rig, gt.T_wc[idx], truth).items():
+                res["rig"][c].append(v)
+        f = run / "work" / "wide" / f"{idx:06d}.npz"
+        if f.exists():
+            d = np.load(f)
+            X = _pixels(d["depth"].astype(float) * scale, d["K"]) @ (d["R_rect"] @ R1)
+            for c, v in _errors(X, idx, draw, rig, gt.T_wc[idx], truth).items():
+                res["wide"][c].append(v)
+    return res
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("pairs", nargs="+", help="DRAW:RUN (synth folder rendered with --depth : reconstruct --keep-work folder)")
+    args = ap.parse_args(argv)
+    per_draw = {"rig": {c: [] for c in CLASSES}, "wide": {c: [] for c in CLASSES}}
+    print(f"{'draw':28s} {'depth':5s} " + " ".join(f"{c + ' med/MAD %':>20s}" for c in CLASSES))
+    for pair in args.pairs:
+        d, r = pair.split(":")
+        res = bias(Path(d), Path(r))
+        for kind in ("rig", "wide"):
+            cells = []
+            for c in CLASSES:
+                v = np.array(res[kind][c])
+                if len(v):
+                    med = float(np.median(v[:, 0]))
+                    per_draw[kind][c].append(med)
+                    cells.append(f"{100 * med:+8.3f} / {100 * np.median(v[:, 1]):5.2f} ({len(v):2d})")
+                else:
+                    cells.append(f"{'-':>20s}")
+            print(f"{Path(d).name[-28:]:28s} {kind:5s} " + " ".join(f"{s:>20s}" for s in cells))
+    print("median over draws (%):")
+    for kind in ("rig", "wide"):
+        print(f"  {kind:5s} " + "  ".join(f"{c} {100 * np.median(v):+.3f} (n={len(v)})" if v else f"{c} -"
+                                          for c, v in per_draw[kind].items()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
