@@ -20,6 +20,20 @@ def shared_data() -> Path:
 
 
 @pytest.fixture
+def benchmark_module():
+    """Loader of a script in ``benchmarks/`` (not a package) as a module: ``benchmark_module("bench_x")``."""
+    import importlib.util
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load
+
+
+@pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
 

@@ -2,26 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
 
-
-def _module():
-    spec = importlib.util.spec_from_file_location("bench_depth_bias", REPO / "benchmarks" / "bench_depth_bias.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_depth_errors_per_surface_class(tmp_path):
+def test_depth_errors_per_surface_class(tmp_path, benchmark_module):
     """A camera 3 m over a 2 x 0.6 x 0.5 m box on the ground: depth 1 % too far on the roof, exact on the
     ground; the classes and the signed relative errors come back as built."""
-    mod = _module()
+    mod = benchmark_module("bench_depth_bias")
     w, h, f = 320, 240, 200.0
     K = np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1.0]])
     rig = SimpleNamespace(K1=K, D1=np.zeros(5))

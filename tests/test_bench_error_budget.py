@@ -2,22 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 
 from stereo_recon.core.cloud_io import write_cloud
 from stereo_recon.trajectory import Trajectory, write_tum
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _load_budget_module():
-    spec = importlib.util.spec_from_file_location("bench_error_budget", REPO / "benchmarks" / "bench_error_budget.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _box_surface(L, W, H, left_mm, right_mm, roof_mm, rng, n=20_000):
@@ -31,7 +21,7 @@ def _box_surface(L, W, H, left_mm, right_mm, roof_mm, rng, n=20_000):
     return np.vstack([left, right, roof]) + rng.normal(0, 0.0005, (3 * n, 3))
 
 
-def test_budget_recovers_scale_walls_and_measurement_share(tmp_path, rng):
+def test_budget_recovers_scale_walls_and_measurement_share(tmp_path, rng, benchmark_module):
     L, W, H = 2.0, 0.4, 0.4
     yaw = np.radians(30)
     T_wt = np.eye(4)
@@ -60,7 +50,7 @@ def test_budget_recovers_scale_walls_and_measurement_share(tmp_path, rng):
     measured_w = k * (W - 0.001) - 0.002  # walls' net -1 mm, then a measurement 2 mm narrower still
     (run / "measurement.json").write_text(json.dumps({"width_m": measured_w, "height_m": k * H}))
 
-    r = _load_budget_module().budget(run, scene)
+    r = benchmark_module("bench_error_budget").budget(run, scene)
     assert abs(r["scale_pct"] - (100 * (k - 1))) < 0.01
     assert abs(r["wall_left_mm"] - 2.0) < 0.2
     assert abs(r["wall_right_mm"] + 3.0) < 0.2
