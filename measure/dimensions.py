@@ -372,6 +372,17 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     dens_out["height"] = {"grid_m": hgrid, "density": hdens}
     unc, warnings = _uncertainties(rules, bw, boots, res, noise_m, roof_support, hz)
     out["width_walls_m"] = other_width
+    # Points above the roof level that the noise does not explain: the roof was read from a lower level
+    # (a sparse or sagging roof, a tank's rounded crest, a cab or wall top below it), or stray points sit
+    # above the truck. The data do not say which; the uncertainty spans the top 0.5 % of the points.
+    top = float(np.quantile(z, 0.995)) if len(z) else float(height)
+    above = top - float(height)
+    out["height_top_m"] = top
+    if above > 3 * hz:  # a flat roof's own noise puts its top 0.5 % 2-2.6 noise sigmas above its level
+        unc["height"] = float(np.hypot(unc["height"], above / 2))
+        if above > 0.01 * float(height):
+            warnings.append(f"height {float(height):.3g} m from the roof level; 0.5 % of the truck's points reach "
+                            f"{top:.3g} m (the uncertainty covers both)")
     if other_width is not None:
         # Which reading is the truck's is not decided by the data (a cab or deck wider than the box,
         # or a tail of stray points outside plain walls): the uncertainty spans both (+-2 sigma).

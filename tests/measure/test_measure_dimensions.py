@@ -149,3 +149,27 @@ def test_two_clean_walls_report_no_second_reading():
     m = measure_dimensions(_truck(rng, wall_sigma=0.002), resolution_m=0.004, noise_m=0.002)
     assert m["rules"]["width"] == "kde_two_peaks" and m["width_walls_m"] is None
     assert m["uncertainty_m"]["width"] < 0.01 * 0.38
+
+
+def test_a_sparse_roof_above_the_measured_level_widens_the_height_uncertainty():
+    """A roof seen by only 0.8 % of the points (under the 1 % a roof level needs) above a dense cab roof at
+    85 % of the height: the height comes from the cab's level, 15 % low. The points above it that the noise
+    does not explain make the uncertainty span the top of the truck; a clean flat roof keeps it tight."""
+    rng = np.random.default_rng(7)
+    L, W, H = 2.0, 0.4, 0.4
+    walls = np.vstack([_face(rng, 30_000, (-L / 2, L / 2), (s * W / 2, s * W / 2), (0.1 * H, 0.85 * H)) for s in (-1, 1)])
+    cab_roof = _face(rng, 20_000, (-L / 2, L / 2), (-W / 2, W / 2), (0.85 * H, 0.85 * H))
+    roof = _face(rng, 700, (-L / 2, L / 2), (-W / 2, W / 2), (H, H))
+    xyz = np.vstack([walls, cab_roof, roof])
+    xyz[:, 2] += rng.normal(0.0, 0.002, len(xyz))
+    m = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.002)
+    assert abs(m["height_m"] - 0.85 * H) < 0.005, m["height_m"]          # the wrong level, as built
+    assert abs(m["height_top_m"] - H) < 0.01, m["height_top_m"]
+    # +-2 sigma reaches the top 0.5 % of the points, which lie within the roof's own 2 mm noise of it
+    # (before: sigma 2 mm, the truth 30 sigma off).
+    assert m["height_m"] + 2 * m["uncertainty_m"]["height"] >= m["height_top_m"], m["uncertainty_m"]
+    assert abs(m["height_m"] - H) <= 2 * m["uncertainty_m"]["height"] + 2 * 0.002, m["uncertainty_m"]
+    assert any("0.5 % of the truck's points reach" in w for w in m["warnings"])
+    clean = measure_dimensions(_truck(np.random.default_rng(8), wall_sigma=0.002), resolution_m=0.004, noise_m=0.002)
+    assert clean["uncertainty_m"]["height"] < 0.0025, clean["uncertainty_m"]   # half the spacing, as before
+    assert not any("points reach" in w for w in clean["warnings"])
