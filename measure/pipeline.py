@@ -158,6 +158,10 @@ class Measurement:
             "bandwidth_rules": self.details.get("bandwidth_rules"),
             "warnings": self.details.get("warnings", []),
             "roof_support": self.details.get("roof_support"),
+            # The second readings the uncertainty spans (measure.dimensions): the side walls' own width when
+            # the width came from a shoulder, else null; the top 0.5 % of the truck's points' height.
+            "width_walls_m": self.details.get("width_walls_m"),
+            "height_top_m": self.details.get("height_top_m"),
             "bootstrap_std_m": self.details.get("bootstrap_std_m"),
         })
 
