@@ -1,0 +1,96 @@
+"""Re-measure finished run folders with the current measure code, as ``run`` does, against each scene's truth.
+
+Why: a change to the measure stage (a rule, an uncertainty term) is judged on clouds already reconstructed,
+without re-running the reconstruction. Each RUN folder (cloud.ply, run.json, poses.txt of ``stereo-recon run``
+or ``bench``) is measured with ``run``'s hints and uncertainty terms (the reconstruction's relative error and
+its depth geometry, the reconstruction's data-quality checks), nothing is written into it, and the errors
+against SCENE/truth.json are summarized: mean absolute error per dimension, the share of dimensions whose
+truth lies inside the reported +-2 sigma (all, and for the draws no data-quality gate refused), and the
+verdicts.
+
+Usage::
+
+    python benchmarks/remeasure_runs.py OUT/runs/draw_000:OUT/draws/draw_000 ...    # bench --random folders
+    python benchmarks/remeasure_runs.py --bench OUT                                   # every draw of a bench --random OUT
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+DIMS = ("length", "width", "height")
+
+
+def remeasure(run: Path, scene: Path) -> dict:
+    """One run folder measured as ``run`` measures it: {name, error_pct, z (|error| / sigma), gated, verdict} or {name, failed}."""
+    from measure.pipeline import measure_cloud_file
+    from stereo_recon.app.pipeline import RECONSTRUCTION_REL_SIGMA, _camera_centres
+    from stereo_recon.app.uncertainty import depth_sigma_m
+    from stereo_recon.quality import camera_motion_check, checks_from_reconstruction
+
+    truth = json.loads((scene / "truth.json").read_text())
+    meta = json.loads((run / "run.json").read_text())
+    centres = _camera_centres(run / "poses.txt")
+    checks = checks_from_reconstruction(meta)
+    motion = camera_motion_check(meta, centres)
+    checks += [motion] if motion is not None else []
+    up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            res = measure_cloud_file(run / "cloud.ply", Path(tmp) / "m", up_hint=up,
+                                     centre_hint=None if centres is None else centres.mean(axis=0), plots=False, html=False,
+                                     reconstruction_rel_sigma=dict(RECONSTRUCTION_REL_SIGMA),
+                                     reconstruction_abs_m=depth_sigma_m(meta)[0], checks=checks, camera_centres=centres)
+        except Exception as err:  # a failure is a result here
+            return {"name": run.name, "failed": str(err)}
+    err = {d: 100 * (res[f"{d}_m"] / truth[f"{d}_m"] - 1) for d in DIMS}
+    z = {d: abs(res[f"{d}_m"] - truth[f"{d}_m"]) / max(res["uncertainty_m"][d], 1e-12) for d in DIMS}
+    gated = any(c["status"] == "fail" for c in res.get("data_quality", {}).get("checks", []))
+    return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "verdict": res["verdict"]["overall"]}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("pairs", nargs="*", help="RUN:SCENE folder pairs")
+    ap.add_argument("--bench", help="a `stereo-recon bench --random` output folder: all its runs/draw_* with draws/draw_*")
+    ap.add_argument("--json", help="also write the rows to this file")
+    args = ap.parse_args(argv)
+    pairs = [tuple(Path(x) for x in p.split(":")) for p in args.pairs]
+    if args.bench:
+        b = Path(args.bench)
+        pairs += [(r, b / "draws" / r.name) for r in sorted((b / "runs").glob("draw_*")) if (r / "cloud.ply").exists()]
+    if not pairs:
+        ap.error("no run folders given")
+    rows = []
+    for run, scene in pairs:
+        r = remeasure(run, scene)
+        rows.append(r)
+        if "failed" in r:
+            print(f"{r['name']:16s} failed: {r['failed'][-100:]}")
+        else:
+            print(f"{r['name']:16s} " + "  ".join(f"{d[0].upper()} {r['error_pct'][d]:+6.2f} % ({r['z'][d]:.1f} sigma)" for d in DIMS)
+                  + f"  {r['verdict']}{'  [gated]' if r['gated'] else ''}")
+    ok = [r for r in rows if "failed" not in r]
+    if ok:
+        E = np.abs([[r["error_pct"][d] for d in DIMS] for r in ok])
+        Z = np.array([[r["z"][d] for d in DIMS] for r in ok])
+        ug = np.array([not r["gated"] for r in ok])
+        print(f"{len(ok)} measured, {len(rows) - len(ok)} failed; mean |error| L {E[:, 0].mean():.2f} W {E[:, 1].mean():.2f} "
+              f"H {E[:, 2].mean():.2f} all {E.mean():.2f} %; truth in +-2 sigma L {100 * np.mean(Z[:, 0] <= 2):.0f} "
+              f"W {100 * np.mean(Z[:, 1] <= 2):.0f} H {100 * np.mean(Z[:, 2] <= 2):.0f} all {100 * np.mean(Z <= 2):.1f} %"
+              + (f" (not gated: {100 * np.mean(Z[ug] <= 2):.1f} % of {ug.sum()} draws)" if ug.any() else ""))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
