@@ -304,9 +304,11 @@ def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, 
 
 
 def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: float, roof_support: float,
-                   hz: float) -> tuple[dict, list[str]]:
+                   hz: float, values: dict, width_walls: float | None, height_top: float) -> tuple[dict, list[str]]:
     """Standard uncertainties (m) per dimension and the warnings: bootstrap spread, plus half the spacing at
-    each edge, plus the noise for an edge taken from an extreme (extremes are pushed outwards by noise)."""
+    each edge, plus the noise for an edge taken from an extreme (extremes are pushed outwards by noise),
+    plus half the gap to a second reading the data allow: the side walls' own width (width_walls, m) when the
+    width came from a shoulder, the top 0.5 % of the points (height_top, m) beyond the roof level's noise."""
     unc = {}
     for name in ("length", "width"):
         n_extreme = _EXTREME_EDGES[rules[name]]
@@ -323,6 +325,21 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
     for name in ("length", "width"):
         if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder"):
             warnings.append(f"{name} from the fallback rule '{rules[name]}' (the paper's peak rule did not apply)")
+    # Points above the roof level that the noise does not explain: the roof was read from a lower level
+    # (a sparse or sagging roof, a tank's rounded crest, a cab or wall top below it), or stray points sit
+    # above the truck. The data do not say which; the uncertainty spans the top 0.5 % of the points.
+    above = height_top - values["height"]
+    if above > 3 * hz:  # a flat roof's own noise puts its top 0.5 % 2-2.6 noise sigmas above its level
+        unc["height"] = float(np.hypot(unc["height"], above / 2))
+        if above > 0.01 * values["height"]:
+            warnings.append(f"height {values['height']:.3g} m from the roof level; 0.5 % of the truck's points reach "
+                            f"{height_top:.3g} m (the uncertainty covers both)")
+    if width_walls is not None:
+        # Which reading is the truck's is not decided by the data (a cab or deck wider than the box,
+        # or a tail of stray points outside plain walls): the uncertainty spans both (+-2 sigma).
+        unc["width"] = float(np.hypot(unc["width"], abs(values["width"] - width_walls) / 2))
+        warnings.append(f"width {values['width']:.3g} m includes a wider part outside the side walls; the walls "
+                        f"alone are {width_walls:.3g} m apart (the uncertainty covers both)")
     return unc, warnings
 
 
@@ -357,7 +374,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         if name == "length":
             out["rear_end"] = d["rear_end"]
         else:
-            other_width = d["other_reading"]
+            out["width_walls_m"] = d["other_reading"]
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -370,26 +387,9 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     bw["height"] = hz
     bw_rules["height"] = "max(ground_rms, half_spacing)"
     dens_out["height"] = {"grid_m": hgrid, "density": hdens}
-    unc, warnings = _uncertainties(rules, bw, boots, res, noise_m, roof_support, hz)
-    out["width_walls_m"] = other_width
-    # Points above the roof level that the noise does not explain: the roof was read from a lower level
-    # (a sparse or sagging roof, a tank's rounded crest, a cab or wall top below it), or stray points sit
-    # above the truck. The data do not say which; the uncertainty spans the top 0.5 % of the points.
-    top = float(np.quantile(z, 0.995)) if len(z) else float(height)
-    above = top - float(height)
-    out["height_top_m"] = top
-    if above > 3 * hz:  # a flat roof's own noise puts its top 0.5 % 2-2.6 noise sigmas above its level
-        unc["height"] = float(np.hypot(unc["height"], above / 2))
-        if above > 0.01 * float(height):
-            warnings.append(f"height {float(height):.3g} m from the roof level; 0.5 % of the truck's points reach "
-                            f"{top:.3g} m (the uncertainty covers both)")
-    if other_width is not None:
-        # Which reading is the truck's is not decided by the data (a cab or deck wider than the box,
-        # or a tail of stray points outside plain walls): the uncertainty spans both (+-2 sigma).
-        gap = abs(out["width_m"] - other_width)
-        unc["width"] = float(np.hypot(unc["width"], gap / 2))
-        warnings.append(f"width {out['width_m']:.3g} m includes a wider part outside the side walls; the walls "
-                        f"alone are {other_width:.3g} m apart (the uncertainty covers both)")
+    out["height_top_m"] = float(np.quantile(z, 0.995))
+    unc, warnings = _uncertainties(rules, bw, boots, res, noise_m, roof_support, hz,
+                                   {"width": out["width_m"], "height": out["height_m"]}, out["width_walls_m"], out["height_top_m"])
     out["warnings"] = warnings
     out["roof_support"] = roof_support
     out["uncertainty_m"] = unc
