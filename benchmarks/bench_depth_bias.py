@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import glob
 import json
-import re
 import sys
 from pathlib import Path
 
@@ -87,8 +86,7 @@ def bias(draw: Path, run: Path) -> dict:
     gt = read_tum(draw / "poses_gt.txt", fps=float(truth["fps"]))
     scale = float(meta["counts"].get("motion_stereo_depth_scale", 1.0))
     views = sorted(int(p.stem) for p in (run / "work" / "depth").glob("*.npy"))
-    wide = {int(a): int(b) for a, b in re.findall(r"motion stereo: view (\d+) with frame (\d+)",
-                                                     (run / "log.txt").read_text())}
+    wide = {int(p.stem) for p in (run / "work" / "wide").glob("*.npz")}  # views with motion-stereo depth
     res: dict = {"rig": {c: [] for c in CLASSES}, "wide": {c: [] for c in CLASSES}}
     for idx in views:
         if idx in wide or not wide:  # the fused views (with a partner when there is motion stereo)
