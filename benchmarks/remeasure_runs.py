@@ -32,23 +32,13 @@ DIMS = ("length", "width", "height")
 def remeasure(run: Path, scene: Path) -> dict:
     """One run folder measured as ``run`` measures it: {name, error_pct, z (|error| / sigma), gated, verdict} or {name, failed}."""
     from measure.pipeline import measure_cloud_file
-    from stereo_recon.app.pipeline import RECONSTRUCTION_REL_SIGMA, _camera_centres
-    from stereo_recon.app.uncertainty import depth_sigma_m
-    from stereo_recon.quality import camera_motion_check, checks_from_reconstruction
+    from stereo_recon.app.pipeline import RunConfig, reconstruction_measure_args
 
     truth = json.loads((scene / "truth.json").read_text())
-    meta = json.loads((run / "run.json").read_text())
-    centres = _camera_centres(run / "poses.txt")
-    checks = checks_from_reconstruction(meta)
-    motion = camera_motion_check(meta, centres)
-    checks += [motion] if motion is not None else []
-    up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            res = measure_cloud_file(run / "cloud.ply", Path(tmp) / "m", up_hint=up,
-                                     centre_hint=None if centres is None else centres.mean(axis=0), plots=False, html=False,
-                                     reconstruction_rel_sigma=dict(RECONSTRUCTION_REL_SIGMA),
-                                     reconstruction_abs_m=depth_sigma_m(meta)[0], checks=checks, camera_centres=centres)
+            res = measure_cloud_file(run / "cloud.ply", Path(tmp) / "m", plots=False, html=False,
+                                     **reconstruction_measure_args(run / "run.json", run / "poses.txt", RunConfig()))
         except Exception as err:  # a failure is a result here
             return {"name": run.name, "failed": str(err)}
     err = {d: 100 * (res[f"{d}_m"] / truth[f"{d}_m"] - 1) for d in DIMS}

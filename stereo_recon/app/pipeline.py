@@ -223,6 +223,26 @@ def run_video(video: str | Path, calib: str | Path, out_dir: str | Path, config:
     return summary
 
 
+def reconstruction_measure_args(run_json: Path, poses: Path, config: RunConfig) -> dict:
+    """What ``run`` hands the measure stage from a reconstruction: keyword arguments of
+    ``measure.pipeline.measure_cloud_file`` (up and centre hints, camera centres, the reconstruction's
+    uncertainty terms) and ``checks``, the reconstruction's data-quality checks.
+
+    run_json, poses: the run folder's run.json and poses.txt (TUM, metres).
+    """
+    from stereo_recon.quality import camera_motion_check, checks_from_reconstruction
+
+    meta = json.loads(Path(run_json).read_text())
+    centres = _camera_centres(Path(poses))
+    checks = checks_from_reconstruction(meta)
+    motion = camera_motion_check(meta, centres)
+    checks += [motion] if motion is not None else []
+    return {"up_hint": np.asarray(meta["up"], float) if meta.get("up") is not None else None,
+            "centre_hint": None if centres is None else centres.mean(axis=0), "camera_centres": centres,
+            "reconstruction_rel_sigma": config.reconstruction_rel_sigma,
+            "reconstruction_abs_m": depth_sigma_m(meta)[0] if config.depth_uncertainty else None, "checks": checks}
+
+
 def _measure_stage(paths: RunPaths, final: RunPaths, config: RunConfig, checks: list[dict], progress):
     """Measure the reconstruction in ``paths`` into the same folder, with the reconstruction's hints and checks.
 
@@ -231,22 +251,15 @@ def _measure_stage(paths: RunPaths, final: RunPaths, config: RunConfig, checks: 
     """
     from measure.pipeline import measure_cloud_file
     from stereo_recon.app.evidence import keyframe_with_box
-    from stereo_recon.quality import camera_motion_check, checks_from_reconstruction
 
-    meta = json.loads(paths.run_json.read_text())
-    centres = _camera_centres(paths.poses)
-    checks += checks_from_reconstruction(meta)
-    motion = camera_motion_check(meta, centres)
-    checks += [motion] if motion is not None else []
-    up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
+    hints = reconstruction_measure_args(paths.run_json, paths.poses, config)
+    checks += hints.pop("checks")
     t1 = time.perf_counter()
     try:
         result = measure_cloud_file(
-            paths.cloud, paths.root, config.measure, up_hint=up, centre_hint=None if centres is None else centres.mean(axis=0),
-            regulation=config.regulation, vehicle_class=config.vehicle_class, scale=config.scale,
-            reconstruction_rel_sigma=config.reconstruction_rel_sigma, checks=checks, camera_centres=centres,
-            reconstruction_abs_m=depth_sigma_m(meta)[0] if config.depth_uncertainty else None,
-            record_path=final.cloud, progress=progress, case=config.case, keyframe=keyframe_with_box)
+            paths.cloud, paths.root, config.measure, regulation=config.regulation, vehicle_class=config.vehicle_class,
+            scale=config.scale, checks=checks, record_path=final.cloud, progress=progress, case=config.case,
+            keyframe=keyframe_with_box, **hints)
         progress.close()  # on failure the CLI abandons it (progress.abandon_open), without a 'done' line
         return result, {"status": "done", "time_s": time.perf_counter() - t1}, None
     except StereoReconError as err:
