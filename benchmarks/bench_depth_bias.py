@@ -106,10 +106,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("pairs", nargs="+", help="DRAW:RUN (synth folder rendered with --depth : reconstruct --keep-work folder)")
     args = ap.parse_args(argv)
+    pairs = [pair.partition(":")[::2] for pair in args.pairs]
+    for pair, (d, r) in zip(args.pairs, pairs):
+        if not ((Path(d) / "depth").is_dir() and (Path(d) / "truth.json").is_file() and (Path(r) / "work" / "depth").is_dir()):
+            ap.error(f"{pair}: expected DRAW:RUN, a synth folder rendered with --depth and a reconstruct --keep-work folder")
     per_draw = {"rig": {c: [] for c in CLASSES}, "wide": {c: [] for c in CLASSES}}
     print(f"{'draw':28s} {'depth':5s} " + " ".join(f"{c + ' med/MAD %':>20s}" for c in CLASSES))
-    for pair in args.pairs:
-        d, r = pair.split(":")
+    for d, r in pairs:
         res = bias(Path(d), Path(r))
         for kind in ("rig", "wide"):
             cells = []

@@ -53,9 +53,16 @@ def main(argv=None) -> int:
     ap.add_argument("--bench", help="a `stereo-recon bench --random` output folder: all its runs/draw_* with draws/draw_*")
     ap.add_argument("--json", help="also write the rows to this file")
     args = ap.parse_args(argv)
-    pairs = [tuple(Path(x) for x in p.split(":")) for p in args.pairs]
+    pairs = []
+    for p in args.pairs:
+        run, _, scene = p.partition(":")
+        if not (Path(run, "cloud.ply").is_file() and Path(scene, "truth.json").is_file()):
+            ap.error(f"{p}: expected RUN:SCENE, a run folder with cloud.ply and a scene folder with truth.json")
+        pairs.append((Path(run), Path(scene)))
     if args.bench:
         b = Path(args.bench)
+        if not (b / "runs").is_dir():
+            ap.error(f"--bench {b}: not a `stereo-recon bench --random` output folder (no runs/ in it)")
         pairs += [(r, b / "draws" / r.name) for r in sorted((b / "runs").glob("draw_*")) if (r / "cloud.ply").exists()]
     if not pairs:
         ap.error("no run folders given")
