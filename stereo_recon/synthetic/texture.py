@@ -18,6 +18,9 @@ import numpy as np
 _TILE = 1024  # texels per tile side (periodic)
 _ROW = 2048  # remap row length used to batch the 1-D point lists
 _TILE_SCALE = 4096.0  # noise tiles are int16 = round(4096 * value)
+# The stain tile is read at (0.8 u - 0.6 v, 0.6 u + 0.8 v) / 16 grain texels: a shift of 80 grain tiles
+# along u or v moves it by (4, 3) or (-3, 4) whole stain tiles, the shortest shift that leaves both unchanged.
+_JOINT_TILES = 80
 
 
 @dataclass(frozen=True)
@@ -155,10 +158,14 @@ def _texture_factor(mat: Material, mid: int, p: np.ndarray, n: np.ndarray | None
         u, v = p[:, 0], p[:, 1]
     else:
         u, v = planar_coords(p, n)
-    period = _TILE * mat.texel_m  # the texture repeats every period metres: shift by whole periods
-    # Whole periods near the reference point keep coordinates small without changing the texture.
-    off_u = np.float32(np.mod(97.1 * mid, period) - np.round(ref[0] / period) * period)
-    off_v = np.float32(np.mod(48.6 * mid, period) - np.round(ref[1] / period) * period)
+    # Whole periods near the reference point keep coordinates small without changing the texture. The
+    # period must be one of *both* tiles: the grain repeats every _TILE texels, but the rotated stain
+    # lookup (below) only every _JOINT_TILES x _TILE texels along either axis. Shifting by the grain's
+    # period alone changed the stains wherever two eyes or two frames rounded the reference differently
+    # (an eye 0.5 period from the origin), so the same panel looked different in them.
+    period = _JOINT_TILES * _TILE * mat.texel_m
+    off_u = np.float32(np.mod(97.1 * mid, _TILE * mat.texel_m) - np.round(ref[0] / period) * period)
+    off_v = np.float32(np.mod(48.6 * mid, _TILE * mat.texel_m) - np.round(ref[1] / period) * period)
     inv = np.float32(1.0 / mat.texel_m)
     tu = (u + off_u) * inv
     tv = (v + off_v) * inv
