@@ -163,9 +163,10 @@ def _texture_factor(mat: Material, mid: int, p: np.ndarray, n: np.ndarray | None
     # lookup (below) only every _JOINT_TILES x _TILE texels along either axis. Shifting by the grain's
     # period alone changed the stains wherever two eyes or two frames rounded the reference differently
     # (an eye 0.5 period from the origin), so the same panel looked different in them.
-    period = _JOINT_TILES * _TILE * mat.texel_m
-    off_u = np.float32(np.mod(97.1 * mid, _TILE * mat.texel_m) - np.round(ref[0] / period) * period)
-    off_v = np.float32(np.mod(48.6 * mid, _TILE * mat.texel_m) - np.round(ref[1] / period) * period)
+    grain_m = _TILE * mat.texel_m  # the grain tile's period: only the per-material offset folds into it
+    joint_m = _JOINT_TILES * _TILE * mat.texel_m  # the period of both tiles together
+    off_u = np.float32(np.mod(97.1 * mid, grain_m) - np.round(ref[0] / joint_m) * joint_m)
+    off_v = np.float32(np.mod(48.6 * mid, grain_m) - np.round(ref[1] / joint_m) * joint_m)
     inv = np.float32(1.0 / mat.texel_m)
     tu = (u + off_u) * inv
     tv = (v + off_v) * inv
