@@ -73,6 +73,9 @@ class MeasureConfig:
     end_window: float = 0.04
     extreme_fraction: float = 0.001
     roof_min_fraction: float = 0.01
+    top_above_roof_sigmas: float | None = None  # height from the top 0.5 % of the points when they lie this many
+                                                # noise sigmas over the roof level (None: the roof level, as the
+                                                # paper; see measure.dimensions.DimensionConfig)
     wall_min_share: float = 0.85
     bootstrap: int = 30
     seed: int = 0
@@ -159,9 +162,11 @@ class Measurement:
             "warnings": self.details.get("warnings", []),
             "roof_support": self.details.get("roof_support"),
             # The second readings the uncertainty spans (measure.dimensions): the side walls' own width when
-            # the width came from a shoulder, else null; the top 0.5 % of the truck's points' height.
+            # the width came from a shoulder, else null; the roof level's and the top 0.5 % of the truck's
+            # points' heights (the height is one of them, see rules.height).
             "width_walls_m": self.details.get("width_walls_m"),
             "height_top_m": self.details.get("height_top_m"),
+            "height_roof_m": self.details.get("height_roof_m"),
             "bootstrap_std_m": self.details.get("bootstrap_std_m"),
         })
 
@@ -227,7 +232,8 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
 
     t = time.perf_counter()
     dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
-                           roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap)
+                           roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap,
+                           top_above_roof_sigmas=cfg.top_above_roof_sigmas)
     dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
