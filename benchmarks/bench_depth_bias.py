@@ -15,6 +15,8 @@ Usage (a draw rendered with depth, a run that kept its work folder)::
 Surface classes, from the rendered point: ``roof`` (within 1 % of H of the truck's top), ``sides``
 (20-80 % of H: side walls, ends, cab), ``ground<1L`` (the ground within one truck length of its centre).
 Per class: median relative depth error over the views (each view's median), and its MAD (%).
+``--by-hole-distance`` also splits the wide pairs' ``sides`` by each pixel's distance to the nearest
+invalid pixel of its depth map (issue 12, seventh round: the far bias sits next to the holes).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 CLASSES = ("roof", "sides", "ground<1L")
+HOLE_BANDS_PX = ((0, 3), (3, 6), (6, 10), (10, None))  # distance to the nearest invalid pixel, px
 
 
 def _classes(P: np.ndarray, truth: dict) -> dict:
@@ -42,8 +45,10 @@ def _classes(P: np.ndarray, truth: dict) -> dict:
             "ground<1L": (np.abs(z) < 1e-4) & near}
 
 
-def _errors(X_raw: np.ndarray, idx: int, draw: Path, rig, T_wc_gt: np.ndarray, truth: dict) -> dict:
-    """Per class (median relative error, MAD) of points X_raw (N, 3, raw left camera frame, m) of view idx."""
+def _errors(X_raw: np.ndarray, idx: int, draw: Path, rig, T_wc_gt: np.ndarray, truth: dict,
+            hole_px: np.ndarray | None = None) -> dict:
+    """Per class (median relative error, MAD) of points X_raw (N, 3, raw left camera frame, m) of view idx;
+    with hole_px (N,: each point's pixel distance to the nearest invalid pixel) also ``sides`` by band."""
     import cv2
 
     uv, _ = cv2.projectPoints(X_raw.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), rig.K1, rig.D1)
@@ -57,7 +62,12 @@ def _errors(X_raw: np.ndarray, idx: int, draw: Path, rig, T_wc_gt: np.ndarray, t
     rel = X_raw[:, 2] / z_gt - 1.0
     P = (X_raw * (z_gt / X_raw[:, 2])[:, None]) @ T_wc_gt[:3, :3].T + T_wc_gt[:3, 3]
     out = {}
-    for name, m in _classes(P, truth).items():
+    classes = _classes(P, truth)
+    if hole_px is not None:
+        for lo, hi in HOLE_BANDS_PX:
+            band = (hole_px >= lo) & (hole_px < (np.inf if hi is None else hi))
+            classes[f"sides {lo}-{hi or ''}px"] = classes["sides"] & band
+    for name, m in classes.items():
         m = m & np.isfinite(rel)
         if m.sum() > 100:
             r = rel[m]
@@ -73,7 +83,15 @@ def _pixels(z: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([u[ok], v[ok], np.ones(ok.sum())], 1) @ np.linalg.inv(K).T * z[ok][:, None]
 
 
-def bias(draw: Path, run: Path) -> dict:
+def _hole_distance(z: np.ndarray) -> np.ndarray:
+    """Distance (px) of each valid pixel of a depth map to its nearest invalid pixel, in ``_pixels`` order."""
+    import cv2
+
+    ok = np.isfinite(z) & (z > 0)
+    return cv2.distanceTransform(ok.astype(np.uint8), cv2.DIST_L2, 3)[ok]
+
+
+def bias(draw: Path, run: Path, by_hole_distance: bool = False) -> dict:
     """{'rig': {class: [(median, MAD) per view]}, 'wide': {...}} for one draw and its kept-work run."""
     from calib.io import load_rig
     from stereo_recon.trajectory import read_tum
@@ -96,15 +114,19 @@ def bias(draw: Path, run: Path) -> dict:
         f = run / "work" / "wide" / f"{idx:06d}.npz"
         if f.exists():
             d = np.load(f)
-            X = _pixels(d["depth"].astype(float) * scale, d["K"]) @ (d["R_rect"] @ R1)
-            for c, v in _errors(X, idx, draw, rig, gt.T_wc[idx], truth).items():
-                res["wide"][c].append(v)
+            zw = d["depth"].astype(float) * scale
+            X = _pixels(zw, d["K"]) @ (d["R_rect"] @ R1)
+            hole = _hole_distance(zw) if by_hole_distance else None
+            for c, v in _errors(X, idx, draw, rig, gt.T_wc[idx], truth, hole).items():
+                res["wide"].setdefault(c, []).append(v)
     return res
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("pairs", nargs="+", help="DRAW:RUN (synth folder rendered with --depth : reconstruct --keep-work folder)")
+    ap.add_argument("--by-hole-distance", action="store_true",
+                    help="also split the wide pairs' sides by distance to the nearest invalid depth pixel")
     args = ap.parse_args(argv)
     pairs = [pair.partition(":")[::2] for pair in args.pairs]
     for pair, (d, r) in zip(args.pairs, pairs):
@@ -113,7 +135,7 @@ def main(argv=None) -> int:
     per_draw = {"rig": {c: [] for c in CLASSES}, "wide": {c: [] for c in CLASSES}}
     print(f"{'draw':28s} {'depth':5s} " + " ".join(f"{c + ' med/MAD %':>20s}" for c in CLASSES))
     for d, r in pairs:
-        res = bias(Path(d), Path(r))
+        res = bias(Path(d), Path(r), args.by_hole_distance)
         for kind in ("rig", "wide"):
             cells = []
             for c in CLASSES:
@@ -125,6 +147,12 @@ def main(argv=None) -> int:
                 else:
                     cells.append(f"{'-':>20s}")
             print(f"{Path(d).name[-28:]:28s} {kind:5s} " + " ".join(f"{s:>20s}" for s in cells))
+        bands = [c for c in res["wide"] if c.startswith("sides ")]
+        if bands:
+            for c in bands:
+                per_draw["wide"].setdefault(c, []).append(float(np.median(np.array(res["wide"][c])[:, 0])))
+            print(f"{'':28s} wide sides by distance to a hole: " + "  ".join(
+                f"{c[6:]} {100 * np.median(np.array(res['wide'][c])[:, 0]):+.3f}" for c in bands))
     print("median over draws (%):")
     for kind in ("rig", "wide"):
         print(f"  {kind:5s} " + "  ".join(f"{c} {100 * np.median(v):+.3f} (n={len(v)})" if v else f"{c} -"

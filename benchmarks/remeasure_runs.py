@@ -12,6 +12,7 @@ Usage::
 
     python benchmarks/remeasure_runs.py OUT/runs/draw_000:OUT/draws/draw_000 ...    # bench --random folders
     python benchmarks/remeasure_runs.py --bench OUT                                   # every draw of a bench --random OUT
+    python benchmarks/remeasure_runs.py --bench OUT --measure '{"top_above_roof_sigmas": 3}'   # with measure overrides
 """
 
 from __future__ import annotations
@@ -29,15 +30,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 DIMS = ("length", "width", "height")
 
 
-def remeasure(run: Path, scene: Path) -> dict:
-    """One run folder measured as ``run`` measures it: {name, error_pct, z (|error| / sigma), gated, verdict} or {name, failed}."""
-    from measure.pipeline import measure_cloud_file
+def remeasure(run: Path, scene: Path, overrides: dict | None = None) -> dict:
+    """One run folder measured as ``run`` measures it: {name, error_pct, z (|error| / sigma), gated, verdict} or {name, failed}.
+
+    overrides: ``measure`` config keys (as in a ``--config`` file's measure section) replacing the defaults.
+    """
+    from measure.pipeline import config_from_dict, measure_cloud_file
     from stereo_recon.app.pipeline import RunConfig, reconstruction_measure_args
 
     truth = json.loads((scene / "truth.json").read_text())
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            res = measure_cloud_file(run / "cloud.ply", Path(tmp) / "m", plots=False, html=False,
+            res = measure_cloud_file(run / "cloud.ply", Path(tmp) / "m", config=config_from_dict(overrides or {}),
+                                     plots=False, html=False,
                                      **reconstruction_measure_args(run / "run.json", run / "poses.txt", RunConfig()))
         except Exception as err:  # a failure is a result here
             return {"name": run.name, "failed": str(err)}
@@ -52,7 +57,12 @@ def main(argv=None) -> int:
     ap.add_argument("pairs", nargs="*", help="RUN:SCENE folder pairs")
     ap.add_argument("--bench", help="a `stereo-recon bench --random` output folder: all its runs/draw_* with draws/draw_*")
     ap.add_argument("--json", help="also write the rows to this file")
+    ap.add_argument("--measure", default="{}", help="measure config overrides as JSON, e.g. '{\"top_above_roof_sigmas\": 3}'")
     args = ap.parse_args(argv)
+    try:
+        overrides = json.loads(args.measure)
+    except json.JSONDecodeError as err:
+        ap.error(f"--measure: not JSON ({err})")
     pairs = []
     for p in args.pairs:
         run, _, scene = p.partition(":")
@@ -68,7 +78,7 @@ def main(argv=None) -> int:
         ap.error("no run folders given")
     rows = []
     for run, scene in pairs:
-        r = remeasure(run, scene)
+        r = remeasure(run, scene, overrides)
         rows.append(r)
         if "failed" in r:
             print(f"{r['name']:16s} failed: {r['failed'][-100:]}")
@@ -84,6 +94,11 @@ def main(argv=None) -> int:
               f"H {E[:, 2].mean():.2f} all {E.mean():.2f} %; truth in +-2 sigma L {100 * np.mean(Z[:, 0] <= 2):.0f} "
               f"W {100 * np.mean(Z[:, 1] <= 2):.0f} H {100 * np.mean(Z[:, 2] <= 2):.0f} all {100 * np.mean(Z <= 2):.1f} %"
               + (f" (not gated: {100 * np.mean(Z[ug] <= 2):.1f} % of {ug.sum()} draws)" if ug.any() else ""))
+        if ug.any():
+            Eu = E[ug]
+            print("draws no data-quality gate refused, absolute error mean / median / p90 / max: " + "; ".join(
+                f"{d[0].upper()} {Eu[:, i].mean():.2f} / {np.median(Eu[:, i]):.2f} / {np.percentile(Eu[:, i], 90):.2f} / {Eu[:, i].max():.1f} %"
+                for i, d in enumerate(DIMS)))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

@@ -52,9 +52,10 @@ class DimensionConfig:
                                        # noise puts them 2-2.6 sigmas up). None (default): the roof level, as
                                        # the paper. Off because the data cannot tell which reading is the
                                        # truck's: at 3, 196 tuning clouds' heights go from mean 4.01 to
-                                       # 3.02 %, p90 13.7 to 6.2 % (sparse roofs and tank crests read from a
-                                       # lower level), but the external renders' roofs bulge 30 mm upwards
-                                       # in their middle and two of their heights go from -0.7 / +0.7 % to
+                                       # 3.02 %, p90 13.7 to 6.2 %, fresh seed 2033's from 3.75 to 1.15 %,
+                                       # 13.4 to 3.3 % (sparse roofs and tank crests read from a lower
+                                       # level), but the external renders' roofs bulge 30 mm upwards in
+                                       # their middle and two of their heights go from -0.7 / +0.7 % to
                                        # +3.6 / +8.3 %. Either way the uncertainty spans both readings.
     wall_min_share: float = 0.85       # peak-to-peak width must be >= this x the robust extent, else fallback
     wall_min_mass: float = 0.02        # a weaker outer peak counts as a wall when it holds this share of points

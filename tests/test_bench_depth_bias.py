@@ -32,3 +32,31 @@ def test_depth_errors_per_surface_class(tmp_path, benchmark_module):
     assert abs(res["roof"][0] - 0.01) < 1e-4, res
     assert abs(res["ground<1L"][0]) < 1e-4, res
     assert "sides" not in res  # seen from straight above: no side wall
+
+
+def test_side_errors_split_by_distance_to_the_nearest_hole(tmp_path, benchmark_module):
+    """A camera 1 m in front of a 2 m tall side wall (every pixel on it), a 40 x 30 px hole in the depth
+    map and the depth 2 % too far within 3 px of the hole: the split puts +2 % in the 0-3 px band and
+    nothing beyond 10 px."""
+    mod = benchmark_module("bench_depth_bias")
+    w, h, f = 320, 240, 200.0
+    K = np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1.0]])
+    rig = SimpleNamespace(K1=K, D1=np.zeros(5))
+    T = np.eye(4)
+    T[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # camera z = world +y, camera y = world -z
+    T[:3, 3] = [0.0, -1.3, 1.0]                                    # the wall is the plane y = -0.3
+    L, W, H = 4.0, 0.6, 2.0
+    z_gt = np.full((h, w), 1.0)
+    (tmp_path / "depth").mkdir()
+    np.save(tmp_path / "depth" / "000000.npy", z_gt.astype(np.float32))
+    truth = {"height_m": H, "length_m": L, "truck_corners_world_m": [[-2, -0.3, 0], [2, -0.3, 0], [2, 0.3, 0], [-2, 0.3, 0]]}
+    z_est = z_gt.copy()
+    z_est[100:130, 140:180] = np.nan                               # the hole
+    near = np.zeros((h, w), bool)
+    near[97:133, 137:183] = True
+    z_est[near & np.isfinite(z_est)] *= 1.02
+    X = mod._pixels(z_est, K)
+    res = mod._errors(X, 0, tmp_path, rig, T, truth, mod._hole_distance(z_est))
+    assert abs(res["sides 0-3px"][0] - 0.02) < 1e-3, res
+    assert abs(res["sides 10-px"][0]) < 1e-4, res
+    assert abs(res["sides"][0]) < 1e-4, res                        # the near band is a small share
