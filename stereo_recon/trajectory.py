@@ -306,3 +306,38 @@ def up_from_trajectory(traj: Trajectory, collinear_ratio: float = 0.05) -> np.nd
             return -n if n @ down > 0 else n
     log.debug("up_from_trajectory: centres nearly collinear, using -mean camera y")
     return -down
+
+
+def orbit_centre(centres: np.ndarray, up: np.ndarray | None = None, max_radius_rel: float = 10.0,
+                 max_residual_rel: float = 0.2) -> np.ndarray:
+    """Centre (3,) of the circle the camera centres fly around, m (world frame); their mean when they do not orbit.
+
+    centres: (N, 3) camera centres, m; up: world up (None: +z). The circle is fitted in the plane normal to
+    up (algebraic least squares, Kasa's fit) and placed at the cameras' mean height. Why not the mean: on a
+    partial orbit the mean lies inside the arc, towards its middle (0.41 x the radius for 240 deg, 0.37 m
+    off a model tanker's centre on a 294 deg arc of seed 2033, which put the hint nearer a second vehicle).
+    Falls back to the mean with fewer than 5 centres, a radius over ``max_radius_rel`` x the centres' spread
+    (a straight pass) or an rms residual over ``max_residual_rel`` x the radius (not an orbit).
+    """
+    c = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    mean = c.mean(axis=0)
+    if len(c) < 5:
+        return mean
+    u = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    a = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(u, a)
+    d = c - mean
+    x, y = d @ a, d @ b
+    A = np.column_stack([x, y, np.ones_like(x)])
+    sol, *_ = np.linalg.lstsq(A, x * x + y * y, rcond=None)
+    cx, cy = sol[0] / 2, sol[1] / 2
+    r2 = sol[2] + cx * cx + cy * cy
+    spread = float(np.sqrt(np.mean(x * x + y * y)))
+    if not r2 > 0 or spread <= 0:
+        return mean
+    r = float(np.sqrt(r2))
+    resid = float(np.sqrt(np.mean((np.hypot(x - cx, y - cy) - r) ** 2)))
+    if r > max_radius_rel * spread or resid > max_residual_rel * r:
+        return mean
+    return mean + cx * a + cy * b

@@ -231,14 +231,16 @@ def reconstruction_measure_args(run_json: Path, poses: Path, config: RunConfig) 
     run_json, poses: the run folder's run.json and poses.txt (TUM, metres).
     """
     from stereo_recon.quality import camera_motion_check, checks_from_reconstruction
+    from stereo_recon.trajectory import orbit_centre
 
     meta = json.loads(Path(run_json).read_text())
     centres = _camera_centres(Path(poses))
     checks = checks_from_reconstruction(meta)
     motion = camera_motion_check(meta, centres)
     checks += [motion] if motion is not None else []
-    return {"up_hint": np.asarray(meta["up"], float) if meta.get("up") is not None else None,
-            "centre_hint": None if centres is None else centres.mean(axis=0), "camera_centres": centres,
+    up = np.asarray(meta["up"], float) if meta.get("up") is not None else None
+    return {"up_hint": up,
+            "centre_hint": None if centres is None else orbit_centre(centres, up), "camera_centres": centres,
             "reconstruction_rel_sigma": config.reconstruction_rel_sigma,
             "reconstruction_abs_m": depth_sigma_m(meta)[0] if config.depth_uncertainty else None, "checks": checks}
 
