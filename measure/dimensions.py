@@ -426,10 +426,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     boots["height"] = float(np.std(reps)) if reps else 0.0
     out["height_roof_m"] = float(height)
     out["height_top_m"] = float(np.quantile(z, 0.995))
-    out["roof_sigma_m"] = _roof_noise(xyz, float(height), out["height_top_m"], res, hz) if hrule == "roof_peak" else hz
-    if (config.top_above_roof_sigmas is not None and hrule == "roof_peak"
-            and out["height_top_m"] - height > config.top_above_roof_sigmas * out["roof_sigma_m"]):
-        height, hrule = out["height_top_m"], "top_quantile_99.5"
+    # The roof's own noise is only needed by the opt-in top reading (a per-cell pass over the truck's points).
+    if config.top_above_roof_sigmas is not None and hrule == "roof_peak":
+        roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)
+        if out["height_top_m"] - height > config.top_above_roof_sigmas * roof_sigma:
+            height, hrule = out["height_top_m"], "top_quantile_99.5"
     out["height_m"] = float(height)
     rules["height"] = hrule
     bw["height"] = hz

@@ -13,6 +13,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from measure.kde import binned_kde, local_maxima, refine_peak
+from stereo_recon.core.geometry import plane_axes
 
 log = logging.getLogger(__name__)
 
@@ -158,14 +159,6 @@ def _fit_plane(pts: np.ndarray) -> tuple[np.ndarray, float, float]:
     return n, d, rms
 
 
-def _plane_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors spanning the plane with normal ``n``."""
-    a_ = np.array([1.0, 0, 0]) if abs(n[0]) < 0.9 else np.array([0, 1.0, 0])
-    e1 = np.cross(n, a_)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(n, e1)
-
-
 def _cell_keys(u: np.ndarray, v: np.ndarray, cell_m: float) -> np.ndarray:
     """One int64 key per point for its square cell of ``cell_m`` (m) in plane coordinates (u, v)."""
     ku = np.floor((u - u.min()) / cell_m).astype(np.int64)
@@ -180,7 +173,7 @@ def _cell_median_refit(pts: np.ndarray, n: np.ndarray, d: float, cell_m: float, 
     only; a per-cell median ignores such local minorities, which a plain least-squares fit
     would follow. Returns (normal, offset, rms of the points about the new plane).
     """
-    e1, e2 = _plane_axes(n)
+    e1, e2 = plane_axes(n)
     u, v, r = pts @ e1, pts @ e2, pts @ n + d
     key = _cell_keys(u, v, cell_m)
     order = np.lexsort((r, key))
@@ -334,7 +327,7 @@ def local_layer_sigma(points: np.ndarray, plane: GroundPlane, cell_m: float, win
     """
     p = np.asarray(points, dtype=np.float64)
     h = p @ plane.normal + plane.offset
-    e1, e2 = _plane_axes(plane.normal)
+    e1, e2 = plane_axes(plane.normal)
     _, inv = np.unique(_cell_keys(p @ e1, p @ e2, cell_m), return_inverse=True)
     n_cells = int(inv.max()) + 1
     # Depths below the plane, sorted once by (cell, depth): each pass then only counts, per cell,

@@ -14,6 +14,7 @@ import numpy as np
 
 from stereo_recon.core.atomic import write_text_atomic
 from stereo_recon.core.errors import InputError
+from stereo_recon.core.geometry import plane_axes
 
 log = logging.getLogger(__name__)
 
@@ -324,9 +325,7 @@ def orbit_centre(centres: np.ndarray, up: np.ndarray | None = None, max_radius_r
     if len(c) < 5:
         return mean
     u = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
-    a = np.cross(u, [1.0, 0.0, 0.0] if abs(u[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    b = np.cross(u, a)
+    a, b = plane_axes(u)
     d = c - mean
     x, y = d @ a, d @ b
     A = np.column_stack([x, y, np.ones_like(x)])
