@@ -2,7 +2,8 @@
 
 A measurement is only as good as what was seen: length is bounded by the front and rear faces,
 width by the two side walls, height by the roof (and the ground). A gate that fails turns the
-verdict into ``undecided`` (``apply_data_quality``); content that cannot be a vehicle at all (a 2 km
+dimensions it leaves unbounded into ``undecided``, and the overall verdict too unless another, well
+seen dimension is over the limit (``apply_data_quality``); content that cannot be a vehicle at all (a 2 km
 or 3 mm "truck", a bump in the ground) is refused with a hint (``check_plausible``).
 Checks follow the ``measurement.json["data_quality"]`` contract: ``{"name", "status", "detail"}``.
 """
@@ -169,16 +170,28 @@ def data_quality(checks: list[dict]) -> dict:
 
 
 def apply_data_quality(verdict: dict, checks: list[dict]) -> dict:
-    """The verdict with every failed gate applied: the dimensions it leaves unbounded and the overall
-    verdict become ``undecided``, the reason names the failed checks. Unchanged when all pass."""
+    """The verdict with every failed gate applied: the dimensions it leaves unbounded become ``undecided``,
+    and so does the overall verdict, unless a dimension the failed gates do not touch is still ``over``:
+    an over-height truck whose side wall was not seen is over the limit whatever its width. The reason
+    names the failed checks. Unchanged when all pass.
+
+    A face gate (``faces_length``/``faces_width``/``faces_height``) bounds its own dimension only; any
+    other failed gate (the recording, the camera's motion, the orbit) leaves every dimension unbounded.
+    """
     failed = [ch for ch in checks if ch["status"] == "fail"]
     if not failed:
         return verdict
+    dims = verdict.get("dimensions") or {}
     for ch in failed:
         for dim in _CHECK_DIMENSIONS.get(ch["name"], ("length", "width", "height")):
-            entry = (verdict.get("dimensions") or {}).get(dim)
+            entry = dims.get(dim)
             if entry is not None and entry.get("verdict") in ("over", "within"):
                 entry["verdict"] = "undecided"
+    gated = "data quality: " + "; ".join(f"{ch['name']}: {ch['detail']}" for ch in failed)
+    over = [d for d, e in dims.items() if isinstance(e, dict) and e.get("verdict") == "over"]
+    if verdict.get("overall") == "over" and over:
+        verdict["reason"] = f"{' and '.join(over)} over the limit (seen well enough to decide); {gated}"
+        return verdict
     verdict["overall"] = "undecided"
-    verdict["reason"] = "data quality: " + "; ".join(f"{ch['name']}: {ch['detail']}" for ch in failed)
+    verdict["reason"] = gated
     return verdict

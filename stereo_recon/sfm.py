@@ -334,7 +334,8 @@ def sfm_poses(
     import pycolmap
 
     if not log.isEnabledFor(logging.DEBUG):
-        pycolmap.logging.minloglevel = 1  # COLMAP's per-image INFO lines only with -v -v
+        # COLMAP's per-image INFO lines only with -v -v; a higher level set by the caller (-q) stays.
+        pycolmap.logging.minloglevel = max(int(pycolmap.logging.minloglevel), 1)
     image_dir = Path(image_dir)
     names = list(image_names) if image_names is not None else list_images(image_dir)
     K = np.asarray(K_rect, dtype=np.float64)

@@ -168,6 +168,11 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    if not stream_is_tty(sys.stderr):
+        # Piped or redirected, what COLMAP (glog) prints reaches stderr unfiltered (on a terminal it goes to the
+        # log, below): its per-image INFO lines only with -vv, its warnings not with -q. glog reads this when
+        # pycolmap is first imported, which no command has done yet.
+        os.environ.setdefault("GLOG_minloglevel", "2" if args.quiet else ("0" if args.verbose >= 2 else "1"))
     with native:   # before logging and progress take their streams: C/C++ output goes to log.txt
         return _run_command(args, argv)
 
