@@ -378,3 +378,15 @@ def test_failed_face_gate_keeps_an_over_that_another_face_decided():
     # A gate over the whole recording leaves no over standing.
     out = apply_data_quality(verdict("within", "over"), [{"name": "orbit_arc", "status": "fail", "detail": "90 deg"}])
     assert out["overall"] == "undecided" and out["dimensions"]["height"]["verdict"] == "undecided"
+
+
+@pytest.mark.slow
+def test_quiet_run_through_colmap_prints_nothing_when_piped(tmp_path):
+    """-q is errors only: COLMAP's own (glog) lines must not reach a piped stderr either (they did: 115 lines)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GLOG_")}
+    proc = subprocess.run([sys.executable, "-m", "stereo_recon.app.cli", "-q", "reconstruct", str(SAMPLE_VIDEO), "--calib",
+                           str(SAMPLE_CONF), "--poses", "sfm", "--frames", "0:24", "--out", str(tmp_path / "out")],
+                          env=dict(env, PYTHONPATH=str(REPO)), cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "out" / "poses.txt").is_file()
+    assert proc.stderr == "" and proc.stdout == "", proc.stderr[:2000]
