@@ -71,6 +71,14 @@ class MotionStereoConfig:
     # scale error as the rig's dense depth sees it. Skipped when it exceeds max_rescale.
     rescale_trajectory: bool = True
     max_rescale: float = 0.05
+    # The rig's depth that ratio is taken from: up to ``scale_views`` views, evenly spread over the paired ones,
+    # are matched again with ``scale_mode`` SGBM (0: the fused 3-path depth of every paired view, as before).
+    # Why: 3-path SGBM reads the ground, which fills most of a far view, 0.0-0.5 % too far (its paths come
+    # from above, where the ground is farther; rendered depth of 4 model-scale tuning draws: +0.4, +0.3, 0.0,
+    # +0.5 %; 8 paths: 0.0 % on all four), so the rescaled trajectory, and every dimension, came out that
+    # much too large (10 tuning draws: mean +0.37 %). 8-path matching costs ~1-2 s a view, so a few views.
+    scale_views: int = 8
+    scale_mode: str = "hh"
 
     def __post_init__(self) -> None:
         if not 0 < self.baseline_rel < 1:
@@ -83,6 +91,10 @@ class MotionStereoConfig:
             raise ConfigError(f"motion stereo max_partner_gap_frames={self.max_partner_gap_frames}: must be >= 1")
         if not self.check_px > 0:
             raise ConfigError(f"motion stereo check_px={self.check_px}: must be > 0")
+        if self.scale_views < 0:
+            raise ConfigError(f"motion stereo scale_views={self.scale_views}: must be >= 0")
+        if self.scale_mode not in ("sgbm3way", "sgbm", "hh", "hh4"):
+            raise ConfigError(f"motion stereo scale_mode={self.scale_mode!r}: expected sgbm3way, sgbm, hh or hh4")
 
 
 def partner_ok(T_wc_a: np.ndarray, T_wc_b: np.ndarray, depth_m: float, config: MotionStereoConfig) -> bool:
@@ -158,21 +170,44 @@ def _rig_depth_in_rect(pair: MotionPair, depth_a_m: np.ndarray) -> np.ndarray:
     return zr
 
 
+def rig_depth_for_scale(gray_a: np.ndarray, gray_a_right: np.ndarray, depth_a_m: np.ndarray, disparity: DisparityConfig,
+                        config: MotionStereoConfig, rig_fb_px_m: float) -> np.ndarray:
+    """The rig's depth (m, full size, NaN invalid) of view a matched again with ``config.scale_mode`` SGBM.
+
+    gray_a, gray_a_right: the rig's rectified grey pair of view a; depth_a_m: its fused (3-path) depth, which
+    sets the search range; disparity: the rig's SGBM settings (range and mode replaced); rig_fb_px_m: the
+    rig's focal x baseline (px m).
+    """
+    ok = np.isfinite(depth_a_m)
+    if ok.sum() < 100:
+        return np.full(depth_a_m.shape, np.nan, np.float32)
+    z_lo, z_hi = np.percentile(depth_a_m[ok], [0.5, 99.5])
+    d_min = max(0, int(math.floor(rig_fb_px_m / (1.25 * z_hi))) - 1)
+    d_max = int(math.ceil(rig_fb_px_m / (0.8 * z_lo))) + 1
+    num = int(min(math.ceil((d_max - d_min) / 16.0) * 16, disparity.num_disparities_16))
+    dcfg = replace(disparity, min_disparity_px=d_min, num_disparities_px=max(16, num), mode=config.scale_mode)
+    d = disparity_map(gray_a, gray_a_right, dcfg)
+    return depth_from_disparity(d, rig_fb_px_m, 1.0, 1e-3, 1e6)
+
+
 def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, pair: MotionPair,
                  disparity: DisparityConfig, config: MotionStereoConfig, rig_fb_px_m: float,
-                 depth_max_m: float) -> tuple[np.ndarray, dict]:
+                 depth_max_m: float, scale_depth_a_m: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Depth (m) of view a from the wide pair (a, b), in a's rectified frame at ``pair.size_px``.
 
     gray_a, gray_b: full-size rectified grey images of the two views; depth_a_m: the rig's depth of
     view a (full size, metres, NaN invalid), used for the search range, the check and the fill.
     disparity: SGBM settings (its range and mode are replaced here); rig_fb_px_m: focal x baseline of
-    the rig (px m), to express the check in the rig's disparity. Returns (depth, counts).
+    the rig (px m), to express the check in the rig's disparity. scale_depth_a_m: the rig's depth of view a
+    from ``rig_depth_for_scale`` (full size, m), or None; its ratio to the wide depth is counted as
+    ``rig_scale_ratio_median``. Returns (depth, counts).
     """
     import cv2
 
     rig_z = _rig_depth_in_rect(pair, depth_a_m)
     ok = np.isfinite(rig_z) & (rig_z <= depth_max_m)
-    counts = {"wide_valid": 0.0, "rig_filled": 0.0, "rig_ratio_median": float("nan")}
+    counts = {"wide_valid": 0.0, "rig_filled": 0.0, "rig_ratio_median": float("nan"),
+              "rig_scale_ratio_median": float("nan")}
     if ok.sum() < 100:  # nothing to set the search range from: the rig's depth only (or nothing)
         return (rig_z if config.fill_from_rig else np.full_like(rig_z, np.nan)), counts
     z_lo, z_hi = np.percentile(rig_z[ok], [0.5, 99.5])
@@ -196,6 +231,12 @@ def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, 
         agree = np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= config.check_px  # False where either is NaN
     # The rig's depth over the wide depth where both see: the trajectory's scale error (reconstruct).
     counts["rig_ratio_median"] = float(np.median(rig_z[agree] / z[agree])) if agree.sum() > 100 else float("nan")
+    if scale_depth_a_m is not None:
+        scale_z = _rig_depth_in_rect(pair, scale_depth_a_m)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            agree_s = np.abs(rig_fb_px_m / z - rig_fb_px_m / scale_z) <= config.check_px
+        if agree_s.sum() > 100:
+            counts["rig_scale_ratio_median"] = float(np.median(scale_z[agree_s] / z[agree_s]))
     # Where the rig has no depth the check cannot run; the wide pair alone is trusted there.
     good = np.isfinite(z) & (agree | ~np.isfinite(rig_z))
     out = np.where(good, z, np.nan).astype(np.float32)

@@ -7,18 +7,19 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from stereo_recon.motion_stereo import MotionStereoConfig, motion_depth, rectify_motion_pair
+from stereo_recon.motion_stereo import MotionStereoConfig, motion_depth, rectify_motion_pair, rig_depth_for_scale
 from stereo_recon.stages.state import FusionPlan, RunContext, Setup, Streamed, WideDepth
 
 log = logging.getLogger(__name__)
 
 
 def wide_view(idx: int, j: int, T_a: np.ndarray, T_b: np.ndarray, setup: Setup, plan: FusionPlan,
-              motion: MotionStereoConfig, work) -> dict:
+              motion: MotionStereoConfig, work, for_scale: bool = False) -> dict:
     """Motion-stereo depth of view idx with its partner frame j, written to work/wide/<idx>.npz; its counts.
 
     T_a, T_b: world-from-camera poses (m) of the two frames; the npz holds the view's colour and depth
-    (m) resampled into the pair's rectified frame, that frame's K (px) and its rotation R_rect.
+    (m) resampled into the pair's rectified frame, that frame's K (px) and its rotation R_rect. for_scale:
+    the view's rig pair is matched again (``rig_depth_for_scale``) for the trajectory's scale.
     """
     import cv2
 
@@ -26,28 +27,46 @@ def wide_view(idx: int, j: int, T_a: np.ndarray, T_b: np.ndarray, setup: Setup, 
     sub = plan.subsample
     out_size = (-(-image_size[0] // sub), -(-image_size[1] // sub))
     color = cv2.imread(str(work / "images" / f"{idx:06d}.png"), cv2.IMREAD_COLOR)
+    gray = cv2.cvtColor(color, cv2.COLOR_BGR2GRAY)
     pair = rectify_motion_pair(setup.K, T_a, T_b, image_size, out_size)
     partner = cv2.imread(str(work / "partner" / f"{idx:06d}.png"), cv2.IMREAD_GRAYSCALE)
-    z, mc = motion_depth(cv2.cvtColor(color, cv2.COLOR_BGR2GRAY), partner,
-                         np.load(work / "depth" / f"{idx:06d}.npy"), pair, setup.disparity, motion,
-                         setup.focal_px * setup.baseline_m, plan.fusion.depth_max_m)
+    rig_depth = np.load(work / "depth" / f"{idx:06d}.npy")
+    fb = setup.focal_px * setup.baseline_m
+    right = work / "right" / f"{idx:06d}.png"
+    scale_depth = None
+    if for_scale and right.is_file():
+        scale_depth = rig_depth_for_scale(gray, cv2.imread(str(right), cv2.IMREAD_GRAYSCALE), rig_depth,
+                                          setup.disparity, motion, fb)
+    z, mc = motion_depth(gray, partner, rig_depth, pair, setup.disparity, motion, fb, plan.fusion.depth_max_m,
+                         scale_depth_a_m=scale_depth)
     np.savez(work / "wide" / f"{idx:06d}.npz", color=cv2.remap(color, *pair.maps_a, cv2.INTER_LINEAR),
              depth=z, K=pair.K_rect, R_rect=pair.R_rect_a)
     log.debug("motion stereo: view %d with frame %d, baseline %.3f m, %s", idx, j, pair.baseline_m, mc)
     return mc
 
 
+def scale_view_indices(todo: list[int], motion: MotionStereoConfig) -> set[int]:
+    """The paired views whose rig pair is matched again for the scale: up to ``scale_views``, evenly spread."""
+    n = min(motion.scale_views, len(todo))
+    if n <= 0:
+        return set()
+    return {todo[int(k)] for k in np.round(np.linspace(0, len(todo) - 1, n)).astype(int)}
+
+
 def rig_scale(motion_counts, motion: MotionStereoConfig) -> float | None:
     """Odometry's scale against the rig's depth: the median rig/wide depth ratio over the pairs (None: < 3 pairs).
 
-    The rig's dense depth against the wide pairs' depth (whose baselines are odometry's steps) measures
+    The rig's depth against the wide pairs' depth (whose baselines are odometry's steps) measures
     odometry's scale. Why it matters: around a truck, a trajectory 0.3 % small puts every camera 3 cm too
-    close to the centre at 9 m, and both side walls 3 cm inside.
+    close to the centre at 9 m, and both side walls 3 cm inside. The rig's depth is the re-matched one of
+    the scale views (``rig_scale_ratio_median``) when at least 3 of them give a ratio, else the fused
+    depth's of every pair.
     """
-    ratios = [m["rig_ratio_median"] for m in motion_counts if np.isfinite(m["rig_ratio_median"])]
-    if not (motion.rescale_trajectory and len(ratios) >= 3):
-        return None
-    return float(np.median(ratios))
+    for key in ("rig_scale_ratio_median", "rig_ratio_median"):
+        ratios = [m[key] for m in motion_counts if np.isfinite(m.get(key, np.nan))]
+        if motion.rescale_trajectory and len(ratios) >= 3:
+            return float(np.median(ratios))
+    return None
 
 
 def motion_stereo(traj, setup: Setup, streamed: Streamed, plan: FusionPlan, ctx: RunContext):
@@ -68,9 +87,12 @@ def motion_stereo(traj, setup: Setup, streamed: Streamed, plan: FusionPlan, ctx:
     views: set[int] = set()
     motion_counts: list[dict] = []
 
+    for_scale = scale_view_indices(todo, motion) if motion.rescale_trajectory and setup.mode == "vo" else set()
+
     def one(idx: int) -> tuple[int, dict]:
         j = partners[idx]
-        return idx, wide_view(idx, j, pose_by_index[idx], pose_by_index[j], setup, plan, motion, ctx.work)
+        return idx, wide_view(idx, j, pose_by_index[idx], pose_by_index[j], setup, plan, motion, ctx.work,
+                              idx in for_scale)
 
     with ctx.clock.stage("motion_stereo"), ThreadPoolExecutor(max_workers=2, thread_name_prefix="motion") as ex:
         for idx, mc in ex.map(one, todo):
@@ -79,6 +101,7 @@ def motion_stereo(traj, setup: Setup, streamed: Streamed, plan: FusionPlan, ctx:
             ctx.report("motion stereo", len(views), len(todo))
     ctx.counts["motion_stereo_views"] = len(views)
     scale = 1.0  # applied to the wide depths together with the trajectory
+    ctx.counts["motion_stereo_scale_views"] = sum(np.isfinite(m["rig_scale_ratio_median"]) for m in motion_counts)
     measured = rig_scale(motion_counts, motion) if setup.mode == "vo" else None
     if measured is not None:
         ctx.counts["trajectory_scale_from_rig"] = measured

@@ -88,7 +88,7 @@ class _StreamPass:
         self.valid_sum = 0.0
         self.pending = None
         self.n_expected = len(setup.source)
-        for sub in ("images", "depth", "partner"):
+        for sub in ("images", "depth", "partner", "right"):
             (ctx.work / sub).mkdir(parents=True, exist_ok=sub != "images")
 
     def depth_of(self, left_g, right_g):
@@ -101,8 +101,9 @@ class _StreamPass:
         self.valid_sum += float(np.isfinite(d).mean())
         return d
 
-    def store_view(self, index, left_r, left_g, right_g, depth):
-        """Depth (when not computed yet) of a fusion view, written to the work folder; its median depth."""
+    def store_view(self, index, left_r, left_g, right_g, depth, keep_right: bool = False):
+        """Depth (when not computed yet) of a fusion view, written to the work folder (with the right eye's grey
+        image when ``keep_right``); its median depth."""
         import cv2
 
         if depth is None:
@@ -113,6 +114,8 @@ class _StreamPass:
             name = f"{index:06d}"
             cv2.imwrite(str(work / "images" / f"{name}.png"), left_r, [cv2.IMWRITE_PNG_COMPRESSION, 1])
             np.save(work / "depth" / f"{name}.npy", depth.astype(np.float32))
+            if keep_right:
+                cv2.imwrite(str(work / "right" / f"{name}.png"), right_g, [cv2.IMWRITE_PNG_COMPRESSION, 1])
         med = float(np.median(depth[ok])) if ok.any() else float("nan")
         self.depth_by_view[index] = med
         return med
@@ -215,7 +218,10 @@ class _StreamPass:
             if self.pending is not None:
                 with ctx.clock.stage("wait_depth"):
                     self.collect(self.pending)
-            self.pending = pool.submit(self.store_view, frame.index, left_r, left_g, right_g, depth)
+            # Motion stereo re-matches a few views' rig pairs with 8 paths for the trajectory's scale
+            # (``stages.motion``): their right eyes are kept; the first view's, before the far-scene switch.
+            keep_right = self.motion is not None or not self.keyframes
+            self.pending = pool.submit(self.store_view, frame.index, left_r, left_g, right_g, depth, keep_right)
             self.keyframes.append(frame.index)
             if self.motion is not None or (self.by_pose and len(self.keyframes) == 1):
                 # The first view waits too: the far-scene check may switch motion stereo on.

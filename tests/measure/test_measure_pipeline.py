@@ -220,3 +220,12 @@ def test_a_fragment_nearer_the_centre_hint_is_not_taken_for_the_truck():
     other = truck + [0.0, 0.7, 0.0]
     xyz2, labels2 = np.concatenate([truck, other]), np.r_[np.zeros(len(truck), int), np.ones(len(other), int)]
     assert select_truck(xyz2, labels2, filt, np.array([1.0, 0.75]))[0] == 1
+    # A scrap under the truck whose footprint covers the hint as the truck's does: no ambiguity (it was refused
+    # as "two equally plausible trucks" on a clean model semi-trailer), while two trucks covering it still are.
+    under = box(np.array([0.9, -0.05, 0.0]), np.array([1.1, 0.05, 0.08]), 1_500)
+    xyz3, labels3 = np.concatenate([truck, under]), np.r_[np.zeros(len(truck), int), np.ones(len(under), int)]
+    assert select_truck(xyz3, labels3, filt, np.array([1.0, 0.0]))[0] == 0
+    overlapping = truck + [0.5, 0.1, 0.0]
+    xyz4, labels4 = np.concatenate([truck, overlapping]), np.r_[np.zeros(len(truck), int), np.ones(len(overlapping), int)]
+    with pytest.raises(StageError, match="two equally plausible trucks both cover the centre hint"):
+        select_truck(xyz4, labels4, filt, np.array([1.2, 0.0]))

@@ -15,7 +15,10 @@ cv2 = pytest.importorskip("cv2")
 
 from stereo_recon.disparity import preset  # noqa: E402
 from stereo_recon.core.errors import ConfigError  # noqa: E402
-from stereo_recon.motion_stereo import MotionStereoConfig, motion_depth, partner_ok, rectify_motion_pair  # noqa: E402
+from stereo_recon.disparity import depth_from_disparity, disparity_map  # noqa: E402
+from stereo_recon.motion_stereo import (MotionStereoConfig, motion_depth, partner_ok, rectify_motion_pair,  # noqa: E402
+                                        rig_depth_for_scale)
+from stereo_recon.stages.motion import rig_scale, scale_view_indices  # noqa: E402
 
 W, H, F = 640, 360, 500.0
 K = np.array([[F, 0, W / 2 - 0.5], [0, F, H / 2 - 0.5], [0, 0, 1.0]])
@@ -107,6 +110,54 @@ def test_config_is_checked():
         MotionStereoConfig(baseline_rel=0)
     with pytest.raises(ConfigError):
         MotionStereoConfig(check_px=-1)
+    with pytest.raises(ConfigError):
+        MotionStereoConfig(scale_views=-1)
+    with pytest.raises(ConfigError):
+        MotionStereoConfig(scale_mode="census")
+
+
+def _weak_ground_pair(seed: int, d0: float = 20.0, gy: float = 0.05, h: int = 360, w: int = 480):
+    """A rig pair of weakly textured (2 % contrast, 3 DN noise) ground whose disparity grows down the image (px)."""
+    rng = np.random.default_rng(seed)
+    tex = cv2.GaussianBlur(rng.normal(0, 1, (h, 2 * w)).astype(np.float32), (0, 0), 2.0)
+    tex = 128 + 0.02 * 128 * tex / tex.std()
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    d = d0 + gy * (y - h / 2)
+    left = cv2.remap(tex, x + w / 2, y, cv2.INTER_CUBIC)
+    right = cv2.remap(tex, x + d + w / 2, y, cv2.INTER_CUBIC)
+    left, right = (np.clip(im + rng.normal(0, 3.0, im.shape), 0, 255).astype(np.uint8) for im in (left, right))
+    return left, right, d
+
+
+def test_rematched_rig_depth_of_weak_ground_is_not_far():
+    """The trajectory's scale is the rig's depth over the wide pairs': on ground like a far view's, the fused
+    3-path depth reads 0.6-1.1 % far (what made far scenes' clouds too large); re-matched with 8 paths, < 0.3 %."""
+    fb = 20.0  # px m: depth 1 m at the image's middle row
+    cfg = preset("balanced", num_disparities_px=64)
+    far3, far8 = [], []
+    for seed in range(3):
+        left, right, d = _weak_ground_pair(seed)
+        z3 = depth_from_disparity(disparity_map(left, right, cfg), fb, 1.0, 1e-3, 1e6)
+        z8 = rig_depth_for_scale(left, right, z3, cfg, MotionStereoConfig(), fb)
+        ok = np.isfinite(z3) & np.isfinite(z8)
+        ok[:, :80] = False  # the band the right eye does not see
+        assert ok.mean() > 0.6
+        far3.append(np.median(z3[ok] * d[ok] / fb) - 1)
+        far8.append(np.median(z8[ok] * d[ok] / fb) - 1)
+    assert np.mean(far3) > 0.005
+    assert abs(np.mean(far8)) < 0.003
+
+
+def test_rig_scale_takes_the_rematched_views_when_there_are_enough():
+    cfg = MotionStereoConfig()
+    nan = float("nan")
+    counts = [{"rig_ratio_median": 1.005, "rig_scale_ratio_median": r} for r in (1.0, 1.001, 0.999, nan, nan)]
+    assert rig_scale(counts, cfg) == pytest.approx(1.0)
+    # Fewer than 3 re-matched views: every pair's fused-depth ratio, as before.
+    assert rig_scale(counts[2:], cfg) == pytest.approx(1.005)
+    assert rig_scale(counts, MotionStereoConfig(rescale_trajectory=False)) is None
+    assert scale_view_indices(list(range(20, 40)), cfg) == {20, 23, 25, 28, 31, 34, 36, 39}
+    assert scale_view_indices([5, 6], cfg) == {5, 6} and scale_view_indices([5, 6], MotionStereoConfig(scale_views=0)) == set()
 
 
 def test_motion_stereo_needs_streaming_poses():
