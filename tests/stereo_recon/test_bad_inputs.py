@@ -356,28 +356,17 @@ def test_resume_after_calibration_change_recomputes(good_run, rigs, tmp_path, ca
     assert job["length_m"] == pytest.approx(1.1 * json.loads(data)["length_m"], rel=0.02)
 
 
-def test_failed_face_gate_keeps_an_over_that_another_face_decided():
+def test_failed_face_gate_leaves_no_over_standing():
+    """An unseen face puts the whole cluster in doubt: an over-height read beside an unseen side wall is no
+    verdict (on evaluation seed 2034, 4 of 8 face-refused full-scale draws had another dimension 6-74 % off)."""
     from measure.quality import apply_data_quality
 
-    def verdict(width, height):
-        statuses = {"length": "within", "width": width, "height": height}
-        overall = "over" if "over" in statuses.values() else "within"
-        return {"overall": overall, "reason": "", "dimensions": {d: {"verdict": s} for d, s in statuses.items()}}
-
-    width_unseen = [{"name": "faces_width", "status": "fail", "detail": "left 3% of the face covered"}]
-    # Over-height with a side wall unseen: over, the width undecided, the reason names both.
-    out = apply_data_quality(verdict("within", "over"), width_unseen)
-    assert out["overall"] == "over" and out["dimensions"]["width"]["verdict"] == "undecided"
-    assert out["reason"].startswith("height over the limit") and "faces_width: left 3%" in out["reason"]
-    # Over only on the unseen dimension: nothing is decided.
-    out = apply_data_quality(verdict("over", "within"), width_unseen)
-    assert out["overall"] == "undecided" and out["dimensions"]["width"]["verdict"] == "undecided"
-    assert out["reason"].startswith("data quality: faces_width")
-    # Within everywhere but the width unseen: undecided, never within.
-    assert apply_data_quality(verdict("within", "within"), width_unseen)["overall"] == "undecided"
-    # A gate over the whole recording leaves no over standing.
-    out = apply_data_quality(verdict("within", "over"), [{"name": "orbit_arc", "status": "fail", "detail": "90 deg"}])
-    assert out["overall"] == "undecided" and out["dimensions"]["height"]["verdict"] == "undecided"
+    statuses = {"length": "within", "width": "within", "height": "over"}
+    v = {"overall": "over", "reason": "", "dimensions": {d: {"verdict": s} for d, s in statuses.items()}}
+    out = apply_data_quality(v, [{"name": "faces_width", "status": "fail", "detail": "left 3% of the face covered"}])
+    assert out["overall"] == "undecided" and out["reason"].startswith("data quality: faces_width: left 3%")
+    assert out["dimensions"]["width"]["verdict"] == "undecided"
+    assert out["dimensions"]["height"]["verdict"] == "over"   # per dimension, what the data said stays on record
 
 
 @pytest.mark.slow
