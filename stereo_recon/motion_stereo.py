@@ -170,6 +170,23 @@ def _rig_depth_in_rect(pair: MotionPair, depth_a_m: np.ndarray) -> np.ndarray:
     return zr
 
 
+def _search_range(fb_px_m: float, z_m: np.ndarray, max_num16: int) -> tuple[int, int]:
+    """(min disparity, number of disparities) px covering depths z_m (valid, m) with 25 % margins, for focal x
+    baseline fb_px_m (px m); the number is a multiple of 16, at least 16 and at most max_num16."""
+    z_lo, z_hi = np.percentile(z_m, [0.5, 99.5])
+    d_min = max(0, int(math.floor(fb_px_m / (1.25 * z_hi))) - 1)
+    d_max = int(math.ceil(fb_px_m / (0.8 * z_lo))) + 1
+    return d_min, max(16, int(min(math.ceil((d_max - d_min) / 16.0) * 16, max_num16)))
+
+
+def _depth_ratio(rig_z: np.ndarray, z: np.ndarray, rig_fb_px_m: float, check_px: float) -> tuple[np.ndarray, float]:
+    """Where the rig's depth rig_z and the wide depth z (m, same pixels) agree within check_px of the rig's
+    disparity, and the median of rig_z / z there (NaN under 100 such pixels): the trajectory's scale error."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        agree = np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= check_px  # False where either is NaN
+    return agree, (float(np.median(rig_z[agree] / z[agree])) if agree.sum() > 100 else float("nan"))
+
+
 def rig_depth_for_scale(gray_a: np.ndarray, gray_a_right: np.ndarray, depth_a_m: np.ndarray, disparity: DisparityConfig,
                         config: MotionStereoConfig, rig_fb_px_m: float) -> np.ndarray:
     """The rig's depth (m, full size, NaN invalid) of view a matched again with ``config.scale_mode`` SGBM.
@@ -181,11 +198,8 @@ def rig_depth_for_scale(gray_a: np.ndarray, gray_a_right: np.ndarray, depth_a_m:
     ok = np.isfinite(depth_a_m)
     if ok.sum() < 100:
         return np.full(depth_a_m.shape, np.nan, np.float32)
-    z_lo, z_hi = np.percentile(depth_a_m[ok], [0.5, 99.5])
-    d_min = max(0, int(math.floor(rig_fb_px_m / (1.25 * z_hi))) - 1)
-    d_max = int(math.ceil(rig_fb_px_m / (0.8 * z_lo))) + 1
-    num = int(min(math.ceil((d_max - d_min) / 16.0) * 16, disparity.num_disparities_16))
-    dcfg = replace(disparity, min_disparity_px=d_min, num_disparities_px=max(16, num), mode=config.scale_mode)
+    d_min, num = _search_range(rig_fb_px_m, depth_a_m[ok], disparity.num_disparities_16)
+    dcfg = replace(disparity, min_disparity_px=d_min, num_disparities_px=num, mode=config.scale_mode)
     d = disparity_map(gray_a, gray_a_right, dcfg)
     return depth_from_disparity(d, rig_fb_px_m, 1.0, 1e-3, 1e6)
 
@@ -210,33 +224,23 @@ def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, 
               "rig_scale_ratio_median": float("nan")}
     if ok.sum() < 100:  # nothing to set the search range from: the rig's depth only (or nothing)
         return (rig_z if config.fill_from_rig else np.full_like(rig_z, np.nan)), counts
-    z_lo, z_hi = np.percentile(rig_z[ok], [0.5, 99.5])
-    fb = float(pair.K_rect[0, 0]) * pair.baseline_m
-    d_min = max(0, int(math.floor(fb / (1.25 * z_hi))) - 1)
-    d_max = int(math.ceil(fb / (0.8 * z_lo))) + 1
-    num = int(min(math.ceil((d_max - d_min) / 16.0) * 16, config.max_num_disparities // 16 * 16))
+    d_min, num = _search_range(float(pair.K_rect[0, 0]) * pair.baseline_m, rig_z[ok], config.max_num_disparities // 16 * 16)
     a = cv2.remap(gray_a, *pair.maps_a, cv2.INTER_LINEAR)
     b = cv2.remap(gray_b, *pair.maps_b, cv2.INTER_LINEAR)
     if pair.partner_left:  # match mirrored images, so that a is the left eye and disparities stay positive
         a, b = np.ascontiguousarray(a[:, ::-1]), np.ascontiguousarray(b[:, ::-1])
     scale = pair.size_px[0] / gray_a.shape[1]
     fill = None if disparity.fill_max_px is None else max(1, int(round(disparity.fill_max_px * scale)))
-    dcfg = replace(disparity, min_disparity_px=d_min, num_disparities_px=max(16, num), mode=config.mode,
-                   fill_max_px=fill)
+    dcfg = replace(disparity, min_disparity_px=d_min, num_disparities_px=num, mode=config.mode, fill_max_px=fill)
     d = disparity_map(a, b, dcfg)
     if pair.partner_left:
         d = np.ascontiguousarray(d[:, ::-1])
     z = depth_from_disparity(d, float(pair.K_rect[0, 0]), pair.baseline_m, 1e-3, 1e6)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        agree = np.abs(rig_fb_px_m / z - rig_fb_px_m / rig_z) <= config.check_px  # False where either is NaN
     # The rig's depth over the wide depth where both see: the trajectory's scale error (reconstruct).
-    counts["rig_ratio_median"] = float(np.median(rig_z[agree] / z[agree])) if agree.sum() > 100 else float("nan")
+    agree, counts["rig_ratio_median"] = _depth_ratio(rig_z, z, rig_fb_px_m, config.check_px)
     if scale_depth_a_m is not None:
-        scale_z = _rig_depth_in_rect(pair, scale_depth_a_m)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            agree_s = np.abs(rig_fb_px_m / z - rig_fb_px_m / scale_z) <= config.check_px
-        if agree_s.sum() > 100:
-            counts["rig_scale_ratio_median"] = float(np.median(scale_z[agree_s] / z[agree_s]))
+        _, counts["rig_scale_ratio_median"] = _depth_ratio(_rig_depth_in_rect(pair, scale_depth_a_m), z, rig_fb_px_m,
+                                                           config.check_px)
     # Where the rig has no depth the check cannot run; the wide pair alone is trusted there.
     good = np.isfinite(z) & (agree | ~np.isfinite(rig_z))
     out = np.where(good, z, np.nan).astype(np.float32)
