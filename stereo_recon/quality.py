@@ -179,9 +179,34 @@ def camera_motion_check(run: dict, centres: np.ndarray | None, config: Recording
                                           f"{depth:.3g} m away")
 
 
+def trajectory_scale_check(counts: dict) -> dict | None:
+    """The camera path's scale against the rig's depth (motion stereo's ``counts`` in run.json); None without.
+
+    Fails when the two disagree by more than the run corrects (``MotionStereoConfig.max_rescale``): the path
+    keeps odometry's scale, and every dimension may be off by as much. Seen on evaluation seed 2035: three
+    full-scale tankers whose odometry was 5.6, 10.8 and 23.5 % short by the rig's depth were measured with
+    it, one as a confident ``within`` with all three dimensions 16-19 % low.
+    """
+    ratio = counts.get("trajectory_scale_from_rig")
+    if ratio is None:
+        return None
+    off = 100 * (float(ratio) - 1)
+    if abs(float(counts.get("motion_stereo_depth_scale", ratio)) - float(ratio)) > 1e-9:  # measured, not applied
+        return check("trajectory_scale", "fail", f"the rig's depth puts the camera path's scale {off:+.1f} % off, more "
+                                                 "than the run corrects: every dimension may be that far off")
+    return check("trajectory_scale", "pass", f"camera path rescaled by {off:+.2f} % to the rig's depth")
+
+
 def checks_from_reconstruction(run: dict, config: RecordingQualityConfig = RecordingQualityConfig()) -> list[dict]:
-    """Gates from a reconstruction's ``run.json``: frames decoded against what the container announces."""
+    """Gates from a reconstruction's ``run.json``: frames decoded against what the container announces, and
+    the camera path's scale against the rig's depth (far scenes)."""
     src, counts = run.get("source") or {}, run.get("counts") or {}
+    scale = trajectory_scale_check(counts)
+    return _frames_decoded_check(src, counts, config) + ([scale] if scale is not None else [])
+
+
+def _frames_decoded_check(src: dict, counts: dict, config: RecordingQualityConfig) -> list[dict]:
+    """Frames decoded against what the container announces (one check, in a list)."""
     fc = int(src.get("frame_count") or 0)
     decoded = int(counts.get("frames_read", 0))
     bad = len(counts.get("bad_frames") or [])

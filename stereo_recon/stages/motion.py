@@ -111,6 +111,8 @@ def motion_stereo(traj, setup: Setup, streamed: Streamed, plan: FusionPlan, ctx:
             T_wc[:, :3, 3] *= scale
             traj = Trajectory(traj.indices, traj.timestamps_s, T_wc, traj.stats)
         else:
+            # Not corrected, so every dimension may be off by as much: the run's data-quality gate
+            # (``quality.trajectory_scale_check``) makes the verdict undecided.
             log.warning("odometry's scale disagrees with the rig's depth by %.1f %%; not rescaled",
                         100 * (measured - 1.0))
     ctx.counts["motion_stereo_depth_scale"] = scale

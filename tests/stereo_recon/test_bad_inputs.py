@@ -379,3 +379,16 @@ def test_quiet_run_through_colmap_prints_nothing_when_piped(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "out" / "poses.txt").is_file()
     assert proc.stderr == "" and proc.stdout == "", proc.stderr[:2000]
+
+
+def test_a_scale_the_run_did_not_correct_fails_its_gate():
+    """Odometry 23.5 % short by the rig's depth and not rescaled (beyond max_rescale): no verdict, and why."""
+    from stereo_recon.quality import checks_from_reconstruction, trajectory_scale_check
+
+    refused = {"trajectory_scale_from_rig": 1.235, "motion_stereo_depth_scale": 1.0}   # as run.json records it
+    c = trajectory_scale_check(refused)
+    assert c["status"] == "fail" and "+23.5 %" in c["detail"]
+    assert trajectory_scale_check({"trajectory_scale_from_rig": 1.03, "motion_stereo_depth_scale": 1.03})["status"] == "pass"
+    assert trajectory_scale_check({"frames_read": 80}) is None   # no motion stereo: no such check
+    names = [ch["name"] for ch in checks_from_reconstruction({"source": {}, "counts": {"frames_read": 80, **refused}})]
+    assert names == ["frames_decoded", "trajectory_scale"]
