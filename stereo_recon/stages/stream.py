@@ -219,8 +219,9 @@ class _StreamPass:
                 with ctx.clock.stage("wait_depth"):
                     self.collect(self.pending)
             # Motion stereo re-matches a few views' rig pairs with 8 paths for the trajectory's scale
-            # (``stages.motion``): their right eyes are kept; the first view's, before the far-scene switch.
-            keep_right = self.motion is not None or not self.keyframes
+            # (``stages.motion``): their right eyes are kept (not the first view's, stored before the far-scene
+            # switch: a near scene writes nothing more than before).
+            keep_right = self.motion is not None
             self.pending = pool.submit(self.store_view, frame.index, left_r, left_g, right_g, depth, keep_right)
             self.keyframes.append(frame.index)
             if self.motion is not None or (self.by_pose and len(self.keyframes) == 1):
