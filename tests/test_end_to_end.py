@@ -1,4 +1,5 @@
-"""End to end on the bundled sample: `stereo-recon run` with no flags measures the truck within 2 % of truth."""
+"""End to end on the bundled sample: `stereo-recon run` with no flags measures the truck within 2 % of truth (the
+width's 2 % is a strict known failure on the 2026-11-26 machine: see test_sample_width_within_two_percent)."""
 
 from __future__ import annotations
 
