@@ -77,6 +77,8 @@ class MeasureConfig:
                                                 # noise sigmas over the roof level (None: the roof level, as the
                                                 # paper; see measure.dimensions.DimensionConfig)
     wall_min_share: float = 0.85
+    wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
+    roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     bootstrap: int = 30
     seed: int = 0
 
@@ -233,7 +235,8 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     t = time.perf_counter()
     dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
                            roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap,
-                           top_above_roof_sigmas=cfg.top_above_roof_sigmas)
+                           top_above_roof_sigmas=cfg.top_above_roof_sigmas, wall_facing_cos=cfg.wall_facing_cos,
+                           roof_facing_cos=cfg.roof_facing_cos)
     dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
@@ -620,6 +623,7 @@ def write_plots(m: Measurement, folder: Path, scale: float | None = None) -> dic
         out[f"{name}_density"] = plots.plot_density(
             folder / f"{name}_density.png", name, k * np.asarray(dens["grid_m"]), np.asarray(dens["density"]) / k,
             samples_m=samples, peaks_m=(e0, e1), markers_m={"start": e0, "end": e1}, units=units,
+            facing_density=None if dens.get("facing_density") is None else np.asarray(dens["facing_density"]) / k,
             title=f"{name}: {k * getattr(m, name + '_m'):.3f} m ({m.rules[name]}, h = {k * m.bandwidths_m[name]:.3g} m)")
     # Top and side views in the truck's own axes (length along x).
     (l0, l1), (w0, w1) = ((k * e for e in d["edges_m"][n]) for n in ("length", "width"))

@@ -83,6 +83,7 @@ def plot_density(
     markers_m: Mapping[str, float] | None = None,
     title: str = "",
     units: str = "m",
+    facing_density=None,
 ) -> Path:
     """Density of point positions along one truck axis, like the paper's Figs. 5-6.
 
@@ -95,6 +96,8 @@ def plot_density(
         with exactly two peaks their distance is drawn as a double arrow.
     markers_m: other labelled positions, e.g. {"front extreme": 7.93}.
     units: how the axis labels name the unit, e.g. "m, real size = model x 16" for a scaled model.
+    facing_density: optional (G,) density of the points facing along the axis (the walls' own points),
+        on the same grid and scale, which placed the surfaces; drawn dashed.
     """
     grid = np.asarray(grid_m, dtype=float).ravel()
     dens = np.asarray(density, dtype=float).ravel()
@@ -121,6 +124,9 @@ def plot_density(
             ymax = max(ymax, min(hist_max, 1.6 * kde_max)) if kde_max > 0 else hist_max
     if grid.size:
         ax.plot(grid, dens, color=_KDE_COLOUR, lw=1.8, label="KDE")
+    if facing_density is not None and grid.size:
+        ax.plot(grid, np.asarray(facing_density, dtype=float).ravel(), color=_KDE_COLOUR, lw=1.2, ls="--",
+                label="KDE of the facing points")
     if ymax <= 0:
         ymax = 1.0
     top = ymax * 1.18

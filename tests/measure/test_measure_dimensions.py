@@ -227,3 +227,59 @@ def test_a_few_stray_points_above_a_flat_roof_do_not_move_the_height():
                            config=replace(DimensionConfig(), top_above_roof_sigmas=3.0))
     assert m["rules"]["height"] == "roof_peak", m["rules"]
     assert abs(m["height_m"] - H) < 0.003, m["height_m"]
+
+
+
+def test_walls_are_placed_by_their_sideways_facing_points_not_pulled_inwards():
+    """``_width_rule`` on a projection where each wall (a 2 mm Gaussian at +-W/2) has as many points again
+    spread on its inner side (a fused wall's inner scatter, a rounded roof edge: half-normal, 8 mm): the
+    smoothed density of all points peaks inside the walls (the paper's reading), the sideways-facing points'
+    own density on them (the default)."""
+    from measure.dimensions import _width_rule
+    from measure.kde import linear_binning
+
+    rng = np.random.default_rng(0)
+    W, n = 0.38, 40_000
+    walls = np.concatenate([s * W / 2 + rng.normal(0.0, 0.002, n) for s in (-1, 1)])
+    inner = np.concatenate([s * (W / 2 - np.abs(rng.normal(0.0, 0.008, n))) for s in (-1, 1)])
+    roof = rng.uniform(-W / 2, W / 2, 2 * n)
+    step, lo = 0.0002, -0.3
+    nb = int(0.6 / step)
+    grid = lo + step * np.arange(nb)
+    side = linear_binning(walls, lo, step, nb)
+    every = side + linear_binning(np.concatenate([inner, roof]), lo, step, nb)
+    cfg = DimensionConfig()
+    paper = _width_rule(every, grid, 0.003, step, cfg, noise=0.002)
+    facing = _width_rule(every, grid, 0.003, step, cfg, noise=0.002, side_counts=side)
+    assert paper[1] == facing[1] == "kde_two_peaks"
+    assert paper[0] < W - 0.002, paper[0]                  # the inward pull exists
+    assert abs(facing[0] - W) < 0.0005, facing[0]          # the walls' own points sit on the walls
+
+
+def test_point_normals_of_a_box_face_along_its_axes():
+    """k-neighbour plane normals on a box's faces (1 mm noise at 4 mm spacing) are within 30 deg of the face's
+    axis for nearly all points (the facing selection's |cos| >= 0.7 is 45 deg)."""
+    from measure.dimensions import point_normals
+
+    rng = np.random.default_rng(2)
+    wall = _face(rng, 20_000, (-1.0, 1.0), (0.19, 0.19), (0.05, 0.38))
+    roof = _face(rng, 20_000, (-1.0, 1.0), (-0.19, 0.19), (0.38, 0.38))
+    pts = np.vstack([wall, roof]) + rng.normal(0.0, 0.001, (40_000, 3))
+    nrm = point_normals(pts)
+    assert np.allclose(np.linalg.norm(nrm, axis=1), 1.0)
+    assert np.mean(np.abs(nrm[:20_000, 1]) >= np.cos(np.radians(30))) > 0.95
+    assert np.mean(np.abs(nrm[20_000:, 2]) >= np.cos(np.radians(30))) > 0.95
+
+def test_a_facing_peak_moves_a_surface_only_outwards_and_within_reach():
+    """``_outer_peak``: a flat surface just inside a curved one (a cab's wall inside a tank's flank) must
+    not take the flank's place; a facing peak beyond reach, or a density still rising there, moves nothing."""
+    from measure.dimensions import _outer_peak
+
+    grid = np.linspace(-0.1, 0.1, 2001)
+    bump = lambda c: np.exp(-0.5 * ((grid - c) / 0.002) ** 2)  # noqa: E731
+    e = 0.05
+    assert abs(_outer_peak(grid, bump(0.053), e, 0.007, +1) - 0.053) < 1e-4       # outwards, within reach
+    assert _outer_peak(grid, bump(0.047), e, 0.007, +1) == e                       # inwards: stays
+    assert _outer_peak(grid, bump(0.070), e, 0.007, +1) == e                       # beyond reach: stays
+    assert abs(_outer_peak(grid, bump(-0.053), -e, 0.007, -1) + 0.053) < 1e-4     # the left wall, outwards
+    assert _outer_peak(grid, bump(-0.047), -e, 0.007, -1) == -e
