@@ -363,12 +363,16 @@ class TSDFFusion:
             return (np.zeros((0, 3)),) * (3 if normals else 2)
         pts = pcd.point.positions.cpu().numpy().astype(np.float64)
         cols = pcd.point.colors.cpu().numpy().astype(np.float64) if "colors" in pcd.point else np.zeros_like(pts)
+        nrm = pcd.point.normals.cpu().numpy().astype(np.float64) if "normals" in pcd.point else np.zeros_like(pts)
         # The hash map's block order depends on thread scheduling, so the same volume comes out in a
-        # different order each run; sorting makes cloud.ply (and all that reads it) reproducible.
-        order = np.lexsort((pts[:, 2], pts[:, 1], pts[:, 0]))
+        # different order each run; sorting makes cloud.ply (and all that reads it) reproducible. Two
+        # neighbouring blocks can both emit a point at the same position (with its own normal and colour):
+        # normals and colours break such ties, else their order was the threads' (a Ray worker's cloud
+        # differed from a local worker's by two swapped points, 1 run in ~3).
+        order = canonical_order(pts, nrm, cols)
         if not normals:
             return pts[order], np.clip(cols[order], 0.0, 1.0)
-        nrm = pcd.point.normals.cpu().numpy().astype(np.float64)[order]
+        nrm = nrm[order]
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
         return pts[order], np.clip(cols[order], 0.0, 1.0), nrm
 
@@ -377,6 +381,12 @@ class TSDFFusion:
         self._require_grid()
         wt = self.config.min_weight if min_weight is None else min_weight
         return self._vbg.extract_triangle_mesh(weight_threshold=float(wt)).to_legacy()
+
+
+def canonical_order(pts: np.ndarray, nrm: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Indices that sort points by x, y, z (m), then normal, then colour: the same set of points in any
+    input order comes out in one order (points (N, 3), normals (N, 3), colours (N, 3))."""
+    return np.lexsort((*cols.T[::-1], *nrm.T[::-1], pts[:, 2], pts[:, 1], pts[:, 0]))
 
 
 def estimate_block_count(depth_m: np.ndarray, K: np.ndarray, voxel_m: float, block_resolution: int = 8,

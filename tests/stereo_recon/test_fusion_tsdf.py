@@ -106,3 +106,26 @@ def test_bad_config_and_empty_volume():
     assert f.integrate(np.zeros((H, W, 3), np.uint8), np.full((H, W), np.nan, np.float32), K, np.eye(4)) == 0
     with pytest.raises(StageError, match="no frame"):
         f.extract_cloud()
+
+
+def test_extracted_points_have_one_order_whatever_order_the_threads_give():
+    """Neighbouring voxel blocks can emit two points at the same position whose normals differ in the last
+    bits; sorted by position alone, their order was the threads' (a Ray worker's cloud.ply differed from a
+    local worker's by two swapped points). Sorting by position, normal and colour gives one order."""
+    from stereo_recon.fusion import canonical_order
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1, 1, (500, 3))
+    pts[250:] = pts[:250]                                     # every position twice
+    nrm = rng.normal(size=(500, 3))
+    nrm[250:] = nrm[:250] + rng.normal(0, 1e-8, (250, 3))     # normals apart in the last bits
+    cols = rng.uniform(0, 1, (500, 3))
+    want = None
+    for seed in range(3):
+        perm = np.random.default_rng(seed).permutation(500)
+        o = canonical_order(pts[perm], nrm[perm], cols[perm])
+        got = np.hstack([pts[perm][o], nrm[perm][o], cols[perm][o]])
+        if want is None:
+            want = got
+        assert np.array_equal(got, want)
+    assert np.all(np.diff(want[:, 0]) >= 0)
