@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from measure.kde import linear_binning, local_maxima, lscv_bandwidth, refine_peak, smooth_counts
+from measure.normals import point_normals
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +107,11 @@ def _wall_peaks(counts, grid, dens, h, step, cfg: DimensionConfig) -> np.ndarray
     return np.array([refine_peak(grid, dens, int(i)) for i in pk])
 
 
+def _wall_reach(noise: float, h: float) -> float:
+    """How far (m) from a wall's peak its own scatter reaches: 2.5 x hypot(noise, bandwidth h)."""
+    return 2.5 * float(np.hypot(noise, h))
+
+
 class _Shoulder:
     """A wider part just outside a wall (a cab wider than the box, a flatbed's deck beside its load) by
     less than the noise can separate shows as a shoulder: more points beyond the peak than the wall's own
@@ -119,7 +125,7 @@ class _Shoulder:
     def __init__(self, counts, grid, dens, h: float, noise: float):
         self.grid, self.dens, self.h = grid, dens, h
         self.s_eff = float(np.hypot(noise, h))
-        self.d = 2.5 * self.s_eff
+        self.d = _wall_reach(noise, h)
         self.cdf = np.cumsum(counts)
         self.tot = self.cdf[-1]
 
@@ -178,11 +184,9 @@ def _outer_peak(grid, dens_facing, e: float, w: float, side: int) -> float:
     if i1 <= i0 or dens_facing[i0:i1 + 1].max() <= 0:
         return e
     i = i0 + int(np.argmax(dens_facing[i0:i1 + 1]))
-    if i == (i0 if side > 0 else i1):  # falls outwards from e: the peak of all points stands
-        return e
-    if i == (i1 if side > 0 else i0):  # still rising at the window's end: no peak within reach
-        return e
-    return refine_peak(grid, dens_facing, i)
+    # At e's end: it falls outwards from e, the peak of all points stands; at the far end: still rising
+    # there, no peak within reach.
+    return e if i in (i0, i1) else refine_peak(grid, dens_facing, i)
 
 
 def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0, side_counts=None):
@@ -227,7 +231,7 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
         # outside the walls can pass for a shoulder): returned so that the uncertainty spans both.
         return e1 - e0, rule, (e0, e1), dens, (walls if rule != "kde_two_peaks" else None)
     ds = None if side_counts is None else smooth_counts(side_counts, step, h)
-    d = 2.5 * float(np.hypot(noise, h))
+    d = _wall_reach(noise, h)
     if len(right) and right.max() - lo >= cfg.wall_min_share * core:
         e1 = float(right.max()) if ds is None else _outer_peak(grid, ds, float(right.max()), d, +1)
         return e1 - lo, "one_peak_plus_extreme", (lo, e1), dens, None
@@ -335,27 +339,6 @@ _EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "one_p
                   "rear_peak_to_front_peak": 0, "rear_peak_to_front_extreme": 1, "robust_extent": 2}
 
 
-def point_normals(xyz: np.ndarray, k: int = 16, chunk: int = 100_000) -> np.ndarray:
-    """Unit surface normals (N, 3) from a plane fit to each point's k nearest neighbours (sign arbitrary).
-
-    xyz: (N, 3) points (m). A k-neighbour fit is scale-free (no radius to choose) and deterministic.
-    """
-    from scipy.spatial import cKDTree
-
-    xyz = np.asarray(xyz, dtype=np.float64)
-    k = int(min(max(k, 3), len(xyz)))
-    tree = cKDTree(xyz)
-    out = np.empty_like(xyz)
-    for s0 in range(0, len(xyz), chunk):
-        _, idx = tree.query(xyz[s0:s0 + chunk], k=k)
-        nb = xyz[idx]
-        nb = nb - nb.mean(axis=1, keepdims=True)
-        cov = np.einsum("nki,nkj->nij", nb, nb)
-        _, vec = np.linalg.eigh(cov)
-        out[s0:s0 + chunk] = vec[:, :, 0]
-    return out
-
-
 def _ground_axes(xy: np.ndarray, resolution_m: float):
     """(c0, u_pca, u1, u2, turn_deg): footprint centre (m), PCA length axis, refined length and width axes."""
     # PCA by SVD of the ground-projected points: u1 = length, u2 = width.
@@ -366,6 +349,21 @@ def _ground_axes(xy: np.ndarray, resolution_m: float):
     u1, turn_deg = refine_heading(xy[::stride] - c0, u_pca, resolution_m)
     u2 = np.array([-u1[1], u1[0]])
     return c0, u_pca, u1, u2, turn_deg
+
+
+def _bootstrap_counts(counts: np.ndarray, part: np.ndarray | None, n: int, rng) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """n Poisson replicates of the binned counts, each with its share of part (the facing points' counts,
+    bin by bin at most counts; None: no part) thinned binomially from it.
+
+    The replicates are drawn from rng as without a part, and the thinning from a generator of its own
+    seeded from rng afterwards, so that the main stream is the same with the facing points or without.
+    """
+    draws = [rng.poisson(counts).astype(np.float64) for _ in range(n)]
+    if part is None:
+        return [(rc, None) for rc in draws]
+    thin = np.random.default_rng(rng.integers(2**63))
+    p = np.clip(np.divide(part, counts, out=np.zeros_like(counts), where=counts > 0), 0.0, 1.0)
+    return [(rc, thin.binomial(rc.astype(np.int64), p).astype(np.float64)) for rc in draws]
 
 
 def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, config: DimensionConfig, rng,
@@ -389,21 +387,11 @@ def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, 
         r = _width_rule(counts, grid, h, step, config, noise=noise_m, side_counts=side_counts)
     else:
         r = _length_rule(counts, grid, h, step, config)
-    reps = []
-    # The replicates of all points are drawn as without the facing points; the facing points' share of
-    # each replicate bin is thinned from them with a generator of its own, so that the two stay
-    # consistent and the main stream is the same with the facing points or without.
-    draws = [rng.poisson(counts).astype(np.float64) for _ in range(config.bootstrap)]
-    if name == "width" and side_counts is not None:
-        thin = np.random.default_rng(rng.integers(2**63))
-        p = np.clip(np.divide(side_counts, counts, out=np.zeros_like(counts), where=counts > 0), 0.0, 1.0)
-        for rc in draws:
-            rs = thin.binomial(rc.astype(np.int64), p).astype(np.float64)
-            reps.append(_width_rule(rc, grid, h, step, config, noise=noise_m, side_counts=rs)[0])
-    elif name == "width":
-        reps = [_width_rule(rc, grid, h, step, config, noise=noise_m)[0] for rc in draws]
+    if name == "width":
+        reps = [_width_rule(rc, grid, h, step, config, noise=noise_m, side_counts=rs)[0]
+                for rc, rs in _bootstrap_counts(counts, side_counts, config.bootstrap, rng)]
     else:
-        reps = [_length_rule(rc, grid, h, step, config)[0] for rc in draws]
+        reps = [_length_rule(rc, grid, h, step, config)[0] for rc, _ in _bootstrap_counts(counts, None, config.bootstrap, rng)]
     density = {"grid_m": grid, "density": r[3]}
     if name == "width" and side_counts is not None:
         # On the scale of all points' density (a share of it), for the plot.
@@ -535,14 +523,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
             up_counts = linear_binning(z[up], hgrid[0], stepz, len(hc))
             height = _height_rule(z, hz, stepz, config, counts=hc, lo=hgrid[0], up_counts=up_counts)[0]
     roof_support = _height_rule.support
-    draws = [rng.poisson(hc).astype(np.float64) for _ in range(config.bootstrap)]
-    if up_counts is None:
-        reps = [_height_rule(z, hz, stepz, config, counts=rc, lo=hgrid[0])[0] for rc in draws]
-    else:
-        thin = np.random.default_rng(rng.integers(2**63))
-        p = np.clip(np.divide(up_counts, hc, out=np.zeros_like(hc), where=hc > 0), 0.0, 1.0)
-        reps = [_height_rule(z, hz, stepz, config, counts=rc, lo=hgrid[0],
-                             up_counts=thin.binomial(rc.astype(np.int64), p).astype(np.float64))[0] for rc in draws]
+    reps = [_height_rule(z, hz, stepz, config, counts=rc, lo=hgrid[0], up_counts=ru)[0]
+            for rc, ru in _bootstrap_counts(hc, up_counts, config.bootstrap, rng)]
     boots["height"] = float(np.std(reps)) if reps else 0.0
     out["height_roof_m"] = float(height)
     out["height_top_m"] = float(np.quantile(z, 0.995))

@@ -10,9 +10,9 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from measure.kde import binned_kde, local_maxima, refine_peak
+from measure.normals import local_pca
 from stereo_recon.core.geometry import plane_axes
 
 log = logging.getLogger(__name__)
@@ -59,11 +59,7 @@ def estimate_up(points: np.ndarray, rng=0, sample_size: int = 20_000, k: int = 1
     p = np.asarray(points, dtype=np.float64)
     m = min(sample_size, len(p))
     sub = p[rng.choice(len(p), m, replace=False)]
-    tree = cKDTree(sub)
-    _, nn = tree.query(sub, k=min(k, m))
-    nb = sub[nn] - sub[nn].mean(axis=1, keepdims=True)
-    cov = np.einsum("nki,nkj->nij", nb, nb)
-    w, v = np.linalg.eigh(cov)
+    w, v = local_pca(sub, min(k, m))
     normals = v[:, :, 0]
     planarity = (w[:, 1] - w[:, 0]) / np.maximum(w[:, 2], 1e-30)
     normals = normals[planarity > 0.3]

@@ -259,7 +259,7 @@ def test_walls_are_placed_by_their_sideways_facing_points_not_pulled_inwards():
 def test_point_normals_of_a_box_face_along_its_axes():
     """k-neighbour plane normals on a box's faces (1 mm noise at 4 mm spacing) are within 30 deg of the face's
     axis for nearly all points (the facing selection's |cos| >= 0.7 is 45 deg)."""
-    from measure.dimensions import point_normals
+    from measure.normals import point_normals
 
     rng = np.random.default_rng(2)
     wall = _face(rng, 20_000, (-1.0, 1.0), (0.19, 0.19), (0.05, 0.38))
