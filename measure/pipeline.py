@@ -111,6 +111,8 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
         v = int(v) if want_int else float(v)
         if not np.isfinite(v) or (v < 0) or (v == 0 and k not in ("seed", "bootstrap") and not isinstance(d, int)):
             raise ConfigError(f"{where}: {k} must be a positive number, got {v!r}")
+        if k in ("wall_facing_cos", "roof_facing_cos") and v > 1:  # above 1 no point faces: the paper's reading unasked
+            raise ConfigError(f"{where}: {k} is a cosine, at most 1 (null for the paper's peaks of all points), got {v!r}")
         kw[k] = v
     return MeasureConfig(**kw)
 

@@ -111,6 +111,9 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
         config_from_dict({"eps_m": "big"})
     with pytest.raises(ConfigError, match="positive"):
         config_from_dict({"eps_res": -1})
+    with pytest.raises(ConfigError, match="wall_facing_cos is a cosine, at most 1"):
+        config_from_dict({"wall_facing_cos": 5})
+    assert config_from_dict({"roof_facing_cos": None}).roof_facing_cos is None
     (tmp_path / "m.toml").write_text("[measure]\neps_m = 0.05\nbootstrap = 5\n")
     assert load_config(tmp_path / "m.toml") == MeasureConfig(eps_m=0.05, bootstrap=5)
     (tmp_path / "m.yaml").write_text("ground_thickness_res: 4\nmin_cluster_points: 100\n")
