@@ -300,9 +300,21 @@ def test_failure_inside_transaction_keeps_old_folder(tmp_path):
 
 # ---- data quality and determinism -----------------------------------------------------------------
 
+def _without_end_faces(roof_reaches_ends: bool):
+    """The model truck with no point on its rear and front faces; with roof_reaches_ends False also none on
+    the roof within 15 % of the length of either end (the ends were not seen, from any side)."""
+    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, noise_m=0.001,
+                                                         partial_faces={"box_rear": 0.0, "cab_front": 0.0}), rng=7)
+    if not roof_reaches_ends:
+        L, H = truth["length_m"], truth["height_m"]
+        along = np.abs((pts - truth["truck_centre"]) @ truth["heading"])
+        height = pts @ truth["up"] - truth["ground_offset"]
+        pts = pts[~((truth["labels"] == 1) & (along > 0.35 * L) & (height > 0.9 * H))]
+    return pts, truth
+
+
 def test_unseen_rear_makes_length_undecided(tmp_path, capsys):
-    pts, _ = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, noise_m=0.001,
-                                                     partial_faces={"box_rear": 0.0, "cab_front": 0.0}), rng=7)
+    pts, _ = _without_end_faces(roof_reaches_ends=False)
     cloud = write_cloud(tmp_path / "norear.ply", pts)
     assert main(["measure", str(cloud), "--out", str(tmp_path / "out"), "--no-plots", "--scale", "8"]) == 0
     m = json.loads((tmp_path / "out" / "measurement.json").read_text())
@@ -313,6 +325,21 @@ def test_unseen_rear_makes_length_undecided(tmp_path, capsys):
     assert m["verdict"]["overall"] == "undecided" and m["verdict"]["reason"].startswith("data quality: faces_length")
     assert m["verdict"]["dimensions"]["length"]["verdict"] == "undecided"
     assert "data quality: FAILED (faces_length" in capsys.readouterr().out
+
+
+def test_end_faces_unseen_but_walls_and_roof_reaching_them_bound_the_length(tmp_path):
+    """A plain end face is often not reconstructed while the side walls and the roof, seen to their ends, are:
+    the length is then bounded by where they stop together (a warning, not a refusal), and measured right."""
+    pts, truth = _without_end_faces(roof_reaches_ends=True)
+    cloud = write_cloud(tmp_path / "noends.ply", pts)
+    assert main(["measure", str(cloud), "--out", str(tmp_path / "out"), "--no-plots", "--scale", "8"]) == 0
+    m = json.loads((tmp_path / "out" / "measurement.json").read_text())
+    checks = {c["name"]: c for c in m["data_quality"]["checks"]}
+    assert checks["faces_length"]["status"] == "warn", checks["faces_length"]
+    assert "bounded by both side walls and the roof" in checks["faces_length"]["detail"]
+    assert m["data_quality"]["ok"] is True
+    assert abs(m["length_m"] / truth["length_m"] - 1) < 0.01
+    assert m["verdict"]["dimensions"]["length"]["verdict"] != "undecided"
 
 
 def test_measurement_json_bytes_identical_for_identical_input(clouds, tmp_path):
