@@ -41,8 +41,9 @@ class TruckQualityConfig:
     # roof reach it: each covers at least this share of its rim cells (the walls' 8 cells up 10-90 % of the
     # height, the roof's 8 across 10-90 % of the width) within the end's band. A plain end face is often
     # not reconstructed while the walls and roof, seen to their ends, are (tuning seeds 2034-2037: of the
-    # 16 draws refused for an end face, the 5 whose rims all reach the end read the length within
-    # 0.1-2.5 %; the other 11, among them cut or wrong clusters 8-67 % off, stay refused). None: off.
+    # 15 draws refused for an end face, 12 had read the length within 2.5 %; the 5 whose rims all reach
+    # the end read it within 0.1-2.5 %; the other 10, among them cut or wrong clusters 7.5-34 % off,
+    # stay refused). None: off.
     min_rim_coverage: float | None = 0.5
     min_roof_support: float = 0.02             # share of the truck's points at the roof level (0.10: warn)
     # Orbit: azimuth range of the camera centres around the truck (deg) and their spread seen from it.
