@@ -270,12 +270,13 @@ def _length_rule(counts, grid, h, step, cfg: DimensionConfig):
 
 def _height_rule(z: np.ndarray, h: float, step: float, cfg: DimensionConfig, counts=None, lo=None, up_counts=None):
     """Roof level (m) from the heights z (m): see the module docstring. counts/lo: a histogram of z
-    already binned (step m from lo); up_counts: the same of the upward-facing points, which place the
-    roof level found in the density of all points (None: the peak of all points)."""
-    n_bins = int(np.ceil((z.max() - z.min() + 10 * h) / step)) + 2
-    if lo is None:
-        lo = z.min() - 5 * h
+    already binned (step m from lo, as ``_height_bins``); up_counts: the same of the upward-facing points,
+    which place the roof level found in the density of all points (None: the peak of all points).
+
+    Returns (level m, rule, counts, grid m, density, support: the roof level's share of the points).
+    """
     if counts is None:
+        lo, n_bins = _height_bins(z, h, step)
         counts = linear_binning(z, lo, step, n_bins)
     grid = lo + step * np.arange(len(counts))
     dens = smooth_counts(counts, step, h)
@@ -287,16 +288,19 @@ def _height_rule(z: np.ndarray, h: float, step: float, cfg: DimensionConfig, cou
     for i in sorted(pk, key=lambda i: -grid[i]):
         mass = c[min(i + half + 1, len(counts))] - c[max(i - half, 0)]
         if mass >= need:
-            _height_rule.support = float(mass / max(n, 1))
             level = refine_peak(grid, dens, int(i))
             if up_counts is not None:
                 # The walls' points below the roof pull the smoothed peak of all points down; the
                 # roof's own (upward-facing) points do not.
                 level = _outer_peak(grid, smooth_counts(up_counts, step, h), level, 2.5 * h, +1)
-            return level, "roof_peak", counts, grid, dens
+            return level, "roof_peak", counts, grid, dens, float(mass / max(n, 1))
     q = grid[min(int(np.searchsorted(np.cumsum(counts), (1 - 0.002) * n)), len(grid) - 1)]
-    _height_rule.support = 0.0
-    return float(q), "high_quantile_99.8", counts, grid, dens
+    return float(q), "high_quantile_99.8", counts, grid, dens, 0.0
+
+
+def _height_bins(z: np.ndarray, h: float, step: float) -> tuple[float, int]:
+    """Lower edge (m) and number of the height histogram's bins: the heights' range padded by 5 h each side."""
+    return float(z.min() - 5 * h), int(np.ceil((z.max() - z.min() + 10 * h) / step)) + 2
 
 
 def refine_heading(xy: np.ndarray, u1: np.ndarray, resolution_m: float, max_turn_deg: float = 20.0) -> tuple[np.ndarray, float]:
@@ -515,15 +519,15 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
-    height, hrule, hc, hgrid, hdens = _height_rule(z, hz, stepz, config)
+    lo_z, n_z = _height_bins(z, hz, stepz)
+    hc = linear_binning(z, lo_z, stepz, n_z)
     up_counts = None
     if config.roof_facing_cos is not None:
         up = np.abs(normals[:, 2]) >= config.roof_facing_cos
         if up.sum() >= 200:
-            up_counts = linear_binning(z[up], hgrid[0], stepz, len(hc))
-            height = _height_rule(z, hz, stepz, config, counts=hc, lo=hgrid[0], up_counts=up_counts)[0]
-    roof_support = _height_rule.support
-    reps = [_height_rule(z, hz, stepz, config, counts=rc, lo=hgrid[0], up_counts=ru)[0]
+            up_counts = linear_binning(z[up], lo_z, stepz, n_z)
+    height, hrule, _, hgrid, hdens, roof_support = _height_rule(z, hz, stepz, config, counts=hc, lo=lo_z, up_counts=up_counts)
+    reps = [_height_rule(z, hz, stepz, config, counts=rc, lo=lo_z, up_counts=ru)[0]
             for rc, ru in _bootstrap_counts(hc, up_counts, config.bootstrap, rng)]
     boots["height"] = float(np.std(reps)) if reps else 0.0
     out["height_roof_m"] = float(height)
