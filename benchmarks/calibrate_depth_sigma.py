@@ -80,23 +80,23 @@ def main() -> None:
         if r is None:
             continue
         rows.append(r)
-        ks = " ".join(f"{d[0].upper()} {r['err'][d]:+6.2f}% k {'-' if r['k'][d] is None else format(r['k'][d], '.3f')}" for d in DIMS)
+        ks = " ".join(f"{d[0].upper()} {r['err'][d]:+6.2f}% k {r['k'][d]:.3f}" for d in DIMS)
         print(f"{run}: {r['mode']:4s} Z {r['Z_m']:.2f} m e_Z {1000 * r['e_z']:.2f} mm/px  {ks}")
     base = ReconstructionErrorModel()
     for mode, current in (("rig", base.rig_px), ("wide", base.wide_px)):
         sel = [r for r in rows if r["mode"] == mode]
         if not sel:
             continue
-        q = {}
-        for d in DIMS:
-            ks = [r["k"][d] for r in sel if r["k"][d] is not None]
-            q[d] = float(np.quantile(ks, args.quantile, method="higher")) if ks else float("nan")
+        q = {d: _k_at(sel, d, args.quantile) for d in DIMS}
         print(f"{mode}: {len(sel)} runs; k_px at the {100 * args.quantile:.0f} % quantile: "
               + ", ".join(f"{d} {q[d]:.3f} (now {current[d]:.3f})" for d in DIMS))
-
-
     if args.leave_one_out:
         _leave_one_out(rows, args.quantile)
+
+
+def _k_at(rows: list[dict], d: str, quantile: float) -> float:
+    """The smallest k (px) of dimension d under which at least ``quantile`` of the rows have the truth inside +-2 sigma."""
+    return float(np.quantile([r["k"][d] for r in rows], quantile, method="higher")) if rows else float("nan")
 
 
 def _group(run: str) -> str:
@@ -113,11 +113,10 @@ def _leave_one_out(rows: list[dict], quantile: float) -> None:
         for mode in ("rig", "wide"):
             train = [r for r in rows if r["mode"] == mode and _group(r["run"]) != g]
             test = [r for r in rows if r["mode"] == mode and _group(r["run"]) == g]
+            if not train:
+                continue
             for d in DIMS:
-                ks = [r["k"][d] for r in train]
-                if not ks:
-                    continue
-                k = float(np.quantile(ks, quantile, method="higher"))
+                k = _k_at(train, d, quantile)
                 inside += [r["k"][d] <= k + 1e-12 for r in test]
         if inside:
             print(f"held out {g}: {100 * np.mean(inside):.1f} % of {len(inside)} dimensions inside +-2 sigma")

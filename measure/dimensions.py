@@ -226,10 +226,9 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
         if out_lo >= cfg.shoulder_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * sh.wall_tail(e0, -1):
             w0 = min(w0, sh.edge(e0, -1))
             rule = "kde_peaks_plus_outer_shoulder"
-        e0, e1 = w0, w1
         # With a shoulder the walls' own peak-to-peak distance is the other reading (a thin noise tail
         # outside the walls can pass for a shoulder): returned so that the uncertainty spans both.
-        return e1 - e0, rule, (e0, e1), dens, (walls if rule != "kde_two_peaks" else None)
+        return w1 - w0, rule, (w0, w1), dens, (walls if rule != "kde_two_peaks" else None)
     ds = None if side_counts is None else smooth_counts(side_counts, step, h)
     d = _wall_reach(noise, h)
     if len(right) and right.max() - lo >= cfg.wall_min_share * core:
@@ -386,18 +385,17 @@ def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, 
     h_floor = max(res / 2, 2 * step)
     h, _ = lscv_bandwidth(counts, step, h_floor, h_max)
     bw_rule = "lscv_eq8" if h > h_floor * 1.0001 else "lscv_eq8_at_floor_half_spacing"
+    side_counts = None
     if name == "width":
         side_counts = None if side is None else linear_binning(x[side], lo, step, n_bins)
         r = _width_rule(counts, grid, h, step, config, noise=noise_m, side_counts=side_counts)
-    else:
-        r = _length_rule(counts, grid, h, step, config)
-    if name == "width":
         reps = [_width_rule(rc, grid, h, step, config, noise=noise_m, side_counts=rs)[0]
                 for rc, rs in _bootstrap_counts(counts, side_counts, config.bootstrap, rng)]
     else:
+        r = _length_rule(counts, grid, h, step, config)
         reps = [_length_rule(rc, grid, h, step, config)[0] for rc, _ in _bootstrap_counts(counts, None, config.bootstrap, rng)]
     density = {"grid_m": grid, "density": r[3]}
-    if name == "width" and side_counts is not None:
+    if side_counts is not None:
         # On the scale of all points' density (a share of it), for the plot.
         density["facing_density"] = smooth_counts(side_counts, step, h) * float(side_counts.sum() / max(counts.sum(), 1e-12))
     return {"value": r[0], "rule": r[1], "edge": r[2], "density": density,

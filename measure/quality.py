@@ -123,21 +123,21 @@ def _coverage(along: np.ndarray, up: np.ndarray, span: tuple[float, float], heig
     return len(set(zip(i[ok].tolist(), j[ok].tolist()))) / float(n_along * n_up)
 
 
+def _cells_hit(x: np.ndarray, lo: float, hi: float, n: int = 8) -> float:
+    """Share of n equal cells spanning the middle 80 % of [lo, hi] (m) that hold at least one of x (m)."""
+    i = np.floor((x - (lo + 0.1 * (hi - lo))) / max(0.8 * (hi - lo), 1e-12) * n).astype(int)
+    return len(set(i[(i >= 0) & (i < n)].tolist())) / float(n)
+
+
 def _end_rims(a, b, z, end: float, band_end: float, walls: tuple[float, float], band_side: float, H: float,
               band_roof: float) -> tuple[float, float, float]:
     """Shares of the rim cells of an end (m along the length) holding points: each side wall's 8 cells up
     10-90 % of the height H, and the roof's 8 cells across 10-90 % of the width, within band_end of it."""
     near = np.abs(a - end) <= band_end
-    out = []
-    for w in walls:
-        s = near & (np.abs(b - w) <= band_side)
-        rows = np.floor((z[s] - 0.1 * H) / (0.8 * H) * 8).astype(int)
-        out.append(len(set(rows[(rows >= 0) & (rows < 8)].tolist())) / 8.0)
     w0, w1 = walls
-    s = near & (np.abs(z - H) <= band_roof)
-    cols = np.floor((b[s] - (w0 + 0.1 * (w1 - w0))) / max(0.8 * (w1 - w0), 1e-12) * 8).astype(int)
-    out.append(len(set(cols[(cols >= 0) & (cols < 8)].tolist())) / 8.0)
-    return out[0], out[1], out[2]
+    return (_cells_hit(z[near & (np.abs(b - w0) <= band_side)], 0.0, H),
+            _cells_hit(z[near & (np.abs(b - w1) <= band_side)], 0.0, H),
+            _cells_hit(b[near & (np.abs(z - H) <= band_roof)], w0, w1))
 
 
 def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[dict]:
