@@ -58,15 +58,40 @@ def test_local_layer_sigma_follows_the_range_and_ignores_what_stands_on_the_grou
     assert np.median(s[len(xy):]) == pytest.approx(0.005, rel=0.15)   # the wall's cells: the ground's sigma
 
 
-def test_a_ground_too_noisy_to_place_is_refused_with_the_reason():
-    """A ground layer uniformly many spacings thick (plain asphalt matched badly) is refused, and
-    the message says that the depth is too noisy there, with the layer's thickness."""
-    from stereo_recon.core.errors import StageError
-
+def _noisy_ground_scene(sigma_m: float):
+    """The model truck (0.38 m tall) on a ground whose depth noise is sigma_m everywhere (plain asphalt)."""
     pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.004, tilt_deg=2.0, ground_margin=1.0), rng=2)
     g = truth["labels"] == 0
     rng = np.random.default_rng(2)
-    pts[g] += rng.normal(0, 0.06, g.sum())[:, None] * truth["up"]   # 15 spacings thick
-    with pytest.raises(StageError, match=r"no ground plane .*too noisy") as e:
+    pts[g] += rng.normal(0, sigma_m, g.sum())[:, None] * truth["up"]
+    return pts, truth
+
+
+def test_a_ground_too_noisy_to_place_is_refused_with_the_reason():
+    """A ground layer so noisy (60 mm) that removing it (3 sigma) would take half of the truck is refused, and
+    the message says that the depth is too noisy there, with the layer's thickness. Measured anyway, its
+    level is pulled up by the wheels inside its band: the height reads low, over 2 sigma off."""
+    from stereo_recon.core.errors import StageError
+
+    pts, truth = _noisy_ground_scene(0.06)
+    with pytest.raises(StageError, match=r"no ground plane .*would take \d+% of .*too noisy") as e:
         measure_points(pts, MeasureConfig(), up_hint=truth["up"], rng=0)
     assert "mm thick" in str(e.value)
+    m = measure_points(pts, MeasureConfig(ground_noise_max_rel=None), up_hint=truth["up"], rng=0)
+    assert m.height_m < truth["height_m"] - 2 * m.uncertainty_m["height"]
+
+
+def test_a_ground_many_spacings_thick_but_thin_beside_the_truck_is_measured():
+    """Plain asphalt 5.5 point spacings thick (35 mm robust sigma) is still a plane: the band widens to it
+    (it was refused when the widening was capped at 12 spacings, as 11 tuning draws were) and the
+    truck is measured (L -0.01, W -0.03, H -0.59 %); the ground's removal takes 28 % of the truck's height,
+    under 40 %."""
+    from stereo_recon.core.errors import StageError
+
+    pts, truth = _noisy_ground_scene(0.035)
+    m = measure_points(pts, MeasureConfig(), up_hint=truth["up"], rng=0)
+    for d, tol in (("length", 0.01), ("width", 0.01), ("height", 0.015)):
+        assert abs(getattr(m, f"{d}_m") / truth[f"{d}_m"] - 1) < tol, (d, getattr(m, f"{d}_m"), truth[f"{d}_m"])
+    assert m.ground["layer_sigma_m"] > 5 * m.parameters["resolved"]["resolution_m"]
+    with pytest.raises(StageError, match="no ground plane"):
+        measure_points(pts, MeasureConfig(ground_noise_max_res=12.0), up_hint=truth["up"], rng=0)
