@@ -256,6 +256,13 @@ def _measure_stage(paths: RunPaths, final: RunPaths, config: RunConfig, checks: 
 
     hints = reconstruction_measure_args(paths.run_json, paths.poses, config)
     checks += hints.pop("checks")
+    static = [c for c in checks if c["name"] == "camera_motion" and c["status"] == "fail"]
+    if static:
+        # One viewpoint sees one side of the truck: whatever the cloud holds, its far faces are not there to
+        # measure. Refused before measuring (it used to fail later, by chance, on the single view's noisy
+        # ground); the reconstruction is kept, no verdict is written.
+        failure = StageError("measure", f"{final.cloud}: not measured ({static[0]['detail']})")
+        return {}, {"status": "failed", "error": str(failure)}, failure
     t1 = time.perf_counter()
     try:
         result = measure_cloud_file(
