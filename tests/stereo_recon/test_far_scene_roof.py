@@ -32,12 +32,13 @@ def test_wide_orbit_roof_is_measured_with_motion_stereo(tmp_path):
     low = rig_only["height_m"] / truth["height_m"] - 1
     # The failure mode is there: on the rig's depth alone the roof reads far low. Since the height's uncertainty
     # spans the points above the roof level (measure.dimensions), it is no longer a confident wrong number:
-    # -21 sigma before, -2.0 sigma now, and the measurement says why.
+    # -21 sigma at first, -2.0 sigma with half the gap to the top 0.5 % as the term, -1.0 sigma with the
+    # whole gap (H -14.7 %, the top 0.5 % of the points +0.6 %), and the measurement says why.
     assert low < -0.08, rig_only
-    assert truth["height_m"] - rig_only["height_m"] < 3 * rig_only["uncertainty_m"]["height"], rig_only
+    assert truth["height_m"] - rig_only["height_m"] < 2 * rig_only["uncertainty_m"]["height"], rig_only
     record = json.loads((tmp_path / "rig" / "measurement.json").read_text())
     assert any("points reach" in w for w in record["warnings"]), record["warnings"]
-    assert record["height_top_m"] > rig_only["height_m"] + rig_only["uncertainty_m"]["height"], record["height_top_m"]
+    assert record["height_top_m"] > rig_only["height_m"] + 0.1 * truth["height_m"], record["height_top_m"]
 
     summary = run_video(video, calib, tmp_path / "default", RunConfig(quiet=True))
     counts = json.loads((tmp_path / "default" / "run.json").read_text())["counts"]
