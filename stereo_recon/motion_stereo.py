@@ -225,6 +225,11 @@ def motion_depth(gray_a: np.ndarray, gray_b: np.ndarray, depth_a_m: np.ndarray, 
     if ok.sum() < 100:  # nothing to set the search range from: the rig's depth only (or nothing)
         return (rig_z if config.fill_from_rig else np.full_like(rig_z, np.nan)), counts
     d_min, num = _search_range(float(pair.K_rect[0, 0]) * pair.baseline_m, rig_z[ok], config.max_num_disparities // 16 * 16)
+    if pair.size_px[0] - (d_min + num) <= disparity.block_size_px // 2:
+        # The search range is as wide as the rectified image (a long baseline for the depth, as a wrong pose
+        # makes it): SGBM cannot match it and OpenCV refuses with an error. The rig's depth only, as above.
+        counts["wide_skipped"] = 1.0
+        return (rig_z if config.fill_from_rig else np.full_like(rig_z, np.nan)), counts
     a = cv2.remap(gray_a, *pair.maps_a, cv2.INTER_LINEAR)
     b = cv2.remap(gray_b, *pair.maps_b, cv2.INTER_LINEAR)
     if pair.partner_left:  # match mirrored images, so that a is the left eye and disparities stay positive

@@ -188,3 +188,23 @@ def test_a_view_without_rig_depth_gives_no_wide_depth():
                              MotionStereoConfig(), RIG_FB, 20.0)
     assert not np.isfinite(z).any()
     assert np.isnan(counts["rig_ratio_median"]) and counts["wide_valid"] == 0.0
+
+
+def test_a_search_range_as_wide_as_the_rectified_image_falls_back_to_the_rig():
+    """A partner 6 m away at 5 m depth, rectified to 160 px: the disparity range (~200 px) is wider than the
+    image, which OpenCV's SGBM refuses with an error (a wrong pose makes such pairs: seen on a full-scale
+    draw whose views SfM had turned 22 deg). The view gets no wide depth (or the rig's, when the wide depth
+    is filled from it), and says so."""
+    from dataclasses import replace
+
+    img_a, img_b, T_a, T_b, depth_a = _scene([6.0, 0.0, 0.0], -3.0)
+    pair = rectify_motion_pair(K, T_a, T_b, (W, H), (160, 90))
+    z, counts = motion_depth(img_a, img_b, depth_a, pair, preset("balanced"), MotionStereoConfig(), RIG_FB, 20.0)
+    assert counts["wide_skipped"] == 1.0 and counts["wide_valid"] == 0.0
+    assert not np.isfinite(z).any() or MotionStereoConfig().fill_from_rig
+    z, _ = motion_depth(img_a, img_b, depth_a, pair, preset("balanced"), replace(MotionStereoConfig(), fill_from_rig=True), RIG_FB, 20.0)
+    ok = np.isfinite(z)
+    assert ok.mean() > 0.5
+    assert np.median(np.abs(z[ok] / _exact_rect_depth(pair)[ok] - 1)) < 0.01   # the rig's (here exact) depth
+    with pytest.raises(cv2.error):   # what the guard keeps from the run
+        disparity_map(img_a[:90, :160], img_b[:90, :160], replace(preset("balanced"), min_disparity_px=16, num_disparities_px=192))
