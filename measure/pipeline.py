@@ -241,10 +241,9 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     # what stands there cannot be told from the truck's lower part, and its level is pulled up by the wheels and
     # the chassis inside its band (a model truck 0.38 m tall on a ground of sigma 30 / 60 / 90 mm, d_h 26 / 53 /
     # 78 % of it: heights -1.9 / -2.8 / -6.1 %; tests/measure/test_measure_ground_noise.py).
-    top = float(np.quantile(g.plane.height(p), 0.999))
-    if cfg.ground_noise_max_rel is not None and g.d_h > cfg.ground_noise_max_rel * top:
+    if cfg.ground_noise_max_rel is not None and g.d_h > cfg.ground_noise_max_rel * g.top_m:
         raise StageError("measure", f"{source}: no ground plane (the layer is {1000 * g.layer_sigma:.3g} mm thick (robust sigma): removing "
-                                    f"it ({g.d_h:.3g} m) would take {100 * g.d_h / max(top, 1e-12):.0f}% of the {top:.3g} m that stands on "
+                                    f"it ({g.d_h:.3g} m) would take {100 * g.d_h / max(g.top_m, 1e-12):.0f}% of the {g.top_m:.3g} m that stands on "
                                     f"it, > {100 * cfg.ground_noise_max_rel:.0f}%; the depth is too noisy there (plain, untextured ground or a "
                                     "far range) to place the ground)")
 
@@ -320,6 +319,7 @@ class _Ground:
     d_h: float
     layer_sigma: float
     contrast: float
+    top_m: float          # the 99.9 % quantile of all points' heights above the plane: what stands on the ground
     keep: np.ndarray      # (N,) bool: points above the ground layer
     local_sigma: np.ndarray | None = None   # (N,) the ground layer's sigma in each point's cell (m)
 
@@ -353,14 +353,16 @@ def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str)
         # 5-10 spacings thick yet a plane that places the height well (11 tuning draws were refused by a cap
         # of 12 spacings; the 7 the face gates pass have their heights within 2.5 %). Whether a ground is too
         # noisy for the truck on it is judged against what stands on it (measure_points).
-        spread = _layer_spread(p, plane, xi)
-        cap = cfg.ground_noise_max_spread * spread
-        if cfg.ground_noise_max_res is not None:
-            cap = min(cap, cfg.ground_noise_max_res * res)
-        if cfg.ground_band_m is None and cfg.ground_noise_band > 0 and xi < noisy_xi <= cap:
-            xi = noisy_xi
-            plane = ground_plane(p, xi, up_hint=plane.normal, max_iter=cfg.ground_max_iter, rng=rng)
-            layer_sigma = _layer_sigma(plane.height(p), xi)
+        spread = None   # the layer's extent, measured only when the band is to widen
+        if cfg.ground_band_m is None and cfg.ground_noise_band > 0 and xi < noisy_xi:
+            spread = _layer_spread(p, plane, xi)
+            cap = cfg.ground_noise_max_spread * spread
+            if cfg.ground_noise_max_res is not None:
+                cap = min(cap, cfg.ground_noise_max_res * res)
+            if noisy_xi <= cap:
+                xi = noisy_xi
+                plane = ground_plane(p, xi, up_hint=plane.normal, max_iter=cfg.ground_max_iter, rng=rng)
+                layer_sigma = _layer_sigma(plane.height(p), xi)
         if cfg.ground_thickness_m is None and xi == noisy_xi:
             d_h = max(d_h, cfg.ground_noise_thickness * layer_sigma)
     except ValueError as err:
@@ -376,7 +378,7 @@ def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str)
     contrast = n_band / n_next
     if contrast < cfg.min_ground_contrast:
         thick = ""
-        if cfg.ground_band_m is None and cfg.ground_noise_band > 0 and xi < noisy_xi:
+        if spread is not None and xi < noisy_xi:
             # Say why: the band was not widened to the layer's thickness.
             thick = (f"; the layer is {1000 * layer_sigma:.3g} mm thick (robust sigma), {100 * layer_sigma / max(spread, 1e-12):.1f} % of "
                      f"its extent and {layer_sigma / res:.1f} x the point spacing: no thin planar layer to place the ground on")
@@ -389,7 +391,7 @@ def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str)
         # thickness, cell by cell, so that it does not stand as clutter around the truck.
         local = local_layer_sigma(p, plane, cfg.ground_cell_res * res, 8 * xi)
         keep &= hgt > cfg.ground_local_thickness * local
-    return _Ground(plane, xi, d_h, layer_sigma, contrast, keep=keep, local_sigma=local)
+    return _Ground(plane, xi, d_h, layer_sigma, contrast, top_m=float(np.quantile(hgt, 0.999)), keep=keep, local_sigma=local)
 
 
 def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfig, res: float, timings: dict,
