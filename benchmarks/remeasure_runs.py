@@ -36,6 +36,7 @@ def remeasure(run: Path, scene: Path, overrides: dict | None = None) -> dict:
     overrides: ``measure`` config keys (as in a ``--config`` file's measure section) replacing the defaults.
     """
     from measure.pipeline import config_from_dict, measure_cloud_file
+    from stereo_recon.app.bench import verdict_matches
     from stereo_recon.app.pipeline import RunConfig, reconstruction_measure_args
 
     truth = json.loads((scene / "truth.json").read_text())
@@ -49,7 +50,12 @@ def remeasure(run: Path, scene: Path, overrides: dict | None = None) -> dict:
     err = {d: 100 * (res[f"{d}_m"] / truth[f"{d}_m"] - 1) for d in DIMS}
     z = {d: abs(res[f"{d}_m"] - truth[f"{d}_m"]) / max(res["uncertainty_m"][d], 1e-12) for d in DIMS}
     gated = any(c["status"] == "fail" for c in res.get("data_quality", {}).get("checks", []))
-    return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "verdict": res["verdict"]["overall"]}
+    # Judged as `bench` judges a full-scale draw (a model's verdict is not applicable).
+    expected = (truth.get("over_limit_expectation") or {}).get("verdict")
+    right = (verdict_matches(expected, res["verdict"], {d: truth[f"{d}_m"] for d in DIMS})
+             if expected in ("over-limit", "within-limits") else None)
+    return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "verdict": res["verdict"]["overall"],
+            "verdict_right": right}
 
 
 def main(argv=None) -> int:
@@ -84,7 +90,8 @@ def main(argv=None) -> int:
             print(f"{r['name']:16s} failed: {r['failed'][-100:]}")
         else:
             print(f"{r['name']:16s} " + "  ".join(f"{d[0].upper()} {r['error_pct'][d]:+6.2f} % ({r['z'][d]:.1f} sigma)" for d in DIMS)
-                  + f"  {r['verdict']}{'  [gated]' if r['gated'] else ''}")
+                  + f"  {r['verdict']}{'  [gated]' if r['gated'] else ''}"
+                  + ("" if r["verdict_right"] is None else ("  (right)" if r["verdict_right"] else "  (WRONG)")))
     ok = [r for r in rows if "failed" not in r]
     if ok:
         E = np.abs([[r["error_pct"][d] for d in DIMS] for r in ok])
@@ -94,6 +101,9 @@ def main(argv=None) -> int:
               f"H {E[:, 2].mean():.2f} all {E.mean():.2f} %; truth in +-2 sigma L {100 * np.mean(Z[:, 0] <= 2):.0f} "
               f"W {100 * np.mean(Z[:, 1] <= 2):.0f} H {100 * np.mean(Z[:, 2] <= 2):.0f} all {100 * np.mean(Z <= 2):.1f} %"
               + (f" (not gated: {100 * np.mean(Z[ug] <= 2):.1f} % of {ug.sum()} draws)" if ug.any() else ""))
+        judged = [r["verdict_right"] for r in ok if r["verdict_right"] is not None]
+        if judged:
+            print(f"full-scale verdicts of the measured draws: {sum(judged)} of {len(judged)} right")
         if ug.any():
             Eu = E[ug]
             print("draws no data-quality gate refused, absolute error mean / median / p90 / max: " + "; ".join(

@@ -14,7 +14,9 @@ translation puts the ground at height 0, so z' is the height above the fitted gr
   bandwidth, Eq. 8) of the projections on u_2 — the two side walls — each moved outwards to the
   peak of the wall's own sideways-facing points when there is one within reach (``wall_facing_cos``).
   Fallbacks: one side wall + the robust extreme on the other side (a sparse side); robust extent
-  (no walls, e.g. a flatbed).
+  (no walls, e.g. a flatbed). A rounded body (a tank) is widest at one height only: when the width
+  profile over height (the walls' peaks per height slice) has a concave maximum inside its range,
+  its vertex is the width if wider (``curved_flank_min_drop``).
 - Length: the rear peak (the box's rear face: the end whose end-peak is higher) to the front.
   The front is the front face's peak when there is one at the front end, else the robust front
   extreme (a rounded or sparse cab). Fallback: robust extent.
@@ -83,6 +85,18 @@ class DimensionConfig:
     roof_facing_cos: float | None = 0.7  # likewise the roof level, from the upward-facing points (|normal_z| >=
                                        # this) up to 2.5 bandwidths above the level of all points (the walls
                                        # below pull it down); 11 tuning clouds' height bias -1.10 -> -0.79 %
+    curved_flank_min_drop: float | None = 0.02  # a rounded body (a tank) is widest at one height only, and
+                                       # the density of its flank projected over all heights peaks inside
+                                       # that: per height slice the walls' outermost peaks give the width's
+                                       # profile, and where it falls on both sides of a concave maximum (the
+                                       # slices' median width on each side at least this share below it, and
+                                       # 3 x the slices' scatter about the fit) the vertex is the width, when
+                                       # wider than the peaks' reading, which the uncertainty then spans
+                                       # (``curved_flank_width``). None: off. Measured on 276 re-measured
+                                       # tuning clouds: README, issue 12's twelfth round
+    flank_slices: int = 20             # height slices of the width's profile (of the truck's top, 99.5 % quantile)
+    flank_window: int = 4              # slices on each side of a profile maximum the quadratic is fitted to
+    flank_min_height: float = 0.15     # slices below this share of the top are left out (wheels, ground remnants)
     normal_neighbours: int = 16        # points per local plane fit for the normals (scale-free)
     bootstrap: int = 30                # Poisson-bootstrap replicates for the uncertainties
     grid_bins: int = 4096              # bins over a projection's range (capped resolution of the KDE)
@@ -240,6 +254,137 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
     return float(extent), "robust_extent", (lo, hi), dens, None
 
 
+def _slice_outer_peak(x: np.ndarray, h: float) -> float:
+    """Position (m) of the outermost density peak (towards larger x) holding >= 0.3 x the highest one."""
+    step = h / 4
+    lo = float(x.min()) - 4 * h
+    n = int((float(x.max()) + 4 * h - lo) / step) + 2
+    grid = lo + step * np.arange(n)
+    dens = smooth_counts(linear_binning(x, lo, step, n), step, h)
+    pk = local_maxima(dens, 0.3)
+    return refine_peak(grid, dens, int(pk[-1])) if len(pk) else float("nan")
+
+
+def width_profile(b: np.ndarray, z: np.ndarray, facing: np.ndarray, mid: float, h: float, top: float,
+                  n_slices: int = 20, min_points: int = 30, min_share: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """The width at each height: per slice of [0, top], the sum of the two side walls' outermost peaks.
+
+    b: points' positions on the width axis (m); z: heights above the ground (m); facing: the sideways-
+    facing points (mask); mid: the width's centre on b (m); h: kernel bandwidth (m); top: the truck's top
+    (m). A slice counts where each side holds at least min_points facing points and min_share x the
+    slices' median (a roof's or a crest's few sideways-facing points are not a wall). Returns the slices'
+    mid heights (m) and widths (m; NaN where a slice does not count).
+    """
+    edges = np.linspace(0.0, top, n_slices + 1)
+    widths = np.full(n_slices, np.nan)
+    support = np.zeros(n_slices)
+    for k in range(n_slices):
+        in_k = facing & (z >= edges[k]) & (z < edges[k + 1])
+        sides, n_side = [], []
+        for s in (-1.0, 1.0):
+            sel = in_k & (s * (b - mid) > 0)
+            n_side.append(int(sel.sum()))
+            if n_side[-1] >= min_points:
+                sides.append(_slice_outer_peak(s * (b[sel] - mid), h))
+        support[k] = min(n_side)
+        if len(sides) == 2:
+            widths[k] = sides[0] + sides[1]
+    if np.isfinite(widths).any():
+        widths[support < min_share * np.median(support[np.isfinite(widths)])] = np.nan
+    return 0.5 * (edges[:-1] + edges[1:]), widths
+
+
+def _concave_vertex(z: np.ndarray, w: np.ndarray) -> tuple[float, float, float] | None:
+    """(height, value, robust residual scale) of the vertex of a robust concave quadratic w(z); None when the
+    fit is not concave or its vertex is not inside z's range."""
+    zc = z - z.mean()
+    A = np.stack([np.ones_like(zc), zc, zc * zc], axis=1)
+    wt = np.ones_like(w)
+    # Iteratively reweighted least squares (Huber weights at 2 robust sigmas): one slice's stray peak
+    # must not bend the profile.
+    for _ in range(5):
+        c = np.linalg.lstsq(A * wt[:, None], w * wt, rcond=None)[0]
+        r = w - A @ c
+        s = 1.4826 * float(np.median(np.abs(r))) + 1e-12
+        wt = 1.0 / np.maximum(1.0, np.abs(r) / (2 * s))
+    if c[2] >= 0:
+        return None
+    zv = -c[1] / (2 * c[2])
+    if not zc.min() < zv < zc.max():
+        return None
+    return float(zv + z.mean()), float(c[0] + c[1] * zv + c[2] * zv * zv), s
+
+
+def curved_flank_width(zs: np.ndarray, widths: np.ndarray, window: int, min_drop: float, z_min: float) -> float | None:
+    """The widest part of a rounded body from its width profile (``width_profile``), or None.
+
+    Around each slice with ``window`` valid slices on either side, a concave quadratic is fitted to those
+    slices; its vertex counts when the slices' median width on each side of it lies below it by at least
+    min_drop x it and by 3 x the slices' robust scatter about the fit, the same holds (min_drop) for the
+    slices next to the vertex against those beyond them, and no slice is under 0.7 x it: the profile falls on
+    both sides, gradually, as a rounded flank's does, and neither a flat wall's noise, a step (a cab or
+    wheels narrower than the body) nor a rim flaring at the top or bottom of the walls (one side only, or
+    next to the roof) qualifies. The highest vertex, at most the window's widest slice, is returned.
+    zs, widths: slice heights and widths (m); z_min: slices below this height (m) are left out.
+    """
+    ok = np.isfinite(widths) & (zs >= z_min)
+    idx = np.arange(len(widths))
+    dz = float(np.median(np.diff(zs))) if len(zs) > 1 else 0.0
+    best = None
+    for k in np.flatnonzero(ok):
+        sel = ok & (np.abs(idx - k) <= window)
+        if (sel & (idx < k)).sum() < window or (sel & (idx > k)).sum() < window:
+            continue
+        r = _concave_vertex(zs[sel], widths[sel])
+        if r is None:
+            continue
+        zv, top, scatter = r
+        # The profile must fall on both sides of the fitted vertex (a rim flaring up to the roof's edge
+        # does not) by more than its slices scatter about the fit (a wall whose reconstructed position
+        # wanders with its paint, a stripe read further out than plain panels, is not a rounded body),
+        # and the maximum must be in the slices themselves, not only in the fit (a quadratic through a
+        # step overshoots it): the slices next to the vertex against those beyond them.
+        near = sel & (np.abs(zs - zv) <= 1.5 * dz)
+        below, above = widths[sel & (zs < zv)], widths[sel & (zs > zv)]
+        below_out, above_out = widths[sel & ~near & (zs < zv)], widths[sel & ~near & (zs > zv)]
+        # A rounded flank narrows gradually (an elliptic tank's at 4 slices of 20 from its widest line to 0.84
+        # of it); a profile that collapses within the window runs into a roof or a crest.
+        if min(len(below_out), len(above_out)) < 2 or widths[sel].min() < 0.7 * top:
+            continue
+        peak = float(np.median(widths[near]))
+        drop = min(top - np.median(below), top - np.median(above))
+        falls = drop >= max(min_drop * top, 3.0 * scatter)
+        peaks = min(peak - np.median(below_out), peak - np.median(above_out)) >= min_drop * peak
+        top = min(top, float(widths[sel].max()))
+        if falls and peaks and (best is None or top > best):
+            best = top
+    return best
+
+
+def _curved_flank(out: dict, rules: dict, ends: dict, b: np.ndarray, z: np.ndarray, facing: np.ndarray, h: float,
+                  cfg: DimensionConfig) -> None:
+    """Replace the width in out (and its rule and edges) by a rounded flank's widest part when that is wider.
+
+    The peaks' reading becomes the other reading the uncertainty spans (``width_walls_m``): what is left of
+    the flank's inward pull and a flat wall's noise read as curvature are not told apart by the data.
+    """
+    w0, w1 = ends["width"]
+    top = float(np.quantile(z, 0.995))
+    zs, widths = width_profile(b, z, facing, 0.5 * (w0 + w1), h, top, cfg.flank_slices)
+    out["width_profile_m"] = {"height_m": zs, "width_m": widths}
+    v = curved_flank_width(zs, widths, cfg.flank_window, cfg.curved_flank_min_drop, cfg.flank_min_height * top)
+    if v is None or v <= out["width_m"]:
+        return
+    grow = 0.5 * (v - out["width_m"])
+    # The side walls' points lie around the peaks (the flank's widest line is one height of it): the face
+    # gates look for them there.
+    out["width_wall_edges_m"] = (w0, w1)
+    out["width_walls_m"] = out["width_m"]
+    out["width_m"] = float(v)
+    ends["width"] = (w0 - grow, w1 + grow)
+    rules["width"] = "curved_flank_vertex"
+
+
 def _length_rule(counts, grid, h, step, cfg: DimensionConfig):
     dens = smooth_counts(counts, step, h)
     pk = local_maxima(dens, cfg.peak_min_rel * 0.5)
@@ -338,7 +483,7 @@ def refine_heading(xy: np.ndarray, u1: np.ndarray, resolution_m: float, max_turn
 
 
 # Fallback edges per rule: an edge taken from an extreme is pushed outwards by the noise (uncertainty).
-_EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "one_peak_plus_extreme": 1,
+_EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "curved_flank_vertex": 0, "one_peak_plus_extreme": 1,
                   "rear_peak_to_front_peak": 0, "rear_peak_to_front_extreme": 1, "robust_extent": 2}
 
 
@@ -449,7 +594,7 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         unc["height"] = float(np.hypot(unc["height"], 3 * hz))
         warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
     for name in ("length", "width"):
-        if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder"):
+        if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder", "curved_flank_vertex"):
             warnings.append(f"{name} from the fallback rule '{rules[name]}' (the paper's peak rule did not apply)")
     # Points above the roof level that the noise does not explain: the roof level is a lower surface (a
     # sparse or sagging roof, a tank's rounded crest, a cab or wall top below it), or stray points sit above
@@ -470,11 +615,16 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
                 warnings.append(f"height {values['height']:.3g} m from the roof level; 0.5 % of the truck's points reach "
                                 f"{height_top:.3g} m (the uncertainty covers both)")
     if width_walls is not None:
-        # Which reading is the truck's is not decided by the data (a cab or deck wider than the box,
-        # or a tail of stray points outside plain walls): the uncertainty spans both (+-2 sigma).
+        # Which reading is the truck's is not decided by the data (a cab or deck wider than the box, or a
+        # tail of stray points outside plain walls; a rounded flank's widest line, or a flat wall's
+        # ripple): the uncertainty spans both (+-2 sigma).
         unc["width"] = float(np.hypot(unc["width"], abs(values["width"] - width_walls) / 2))
-        warnings.append(f"width {values['width']:.3g} m includes a wider part outside the side walls; the walls "
-                        f"alone are {width_walls:.3g} m apart (the uncertainty covers both)")
+        if rules["width"] == "curved_flank_vertex":
+            warnings.append(f"width {values['width']:.3g} m from the widest height of a rounded flank; the walls' density "
+                            f"peaks over all heights are {width_walls:.3g} m apart (the uncertainty covers both)")
+        else:
+            warnings.append(f"width {values['width']:.3g} m includes a wider part outside the side walls; the walls "
+                            f"alone are {width_walls:.3g} m apart (the uncertainty covers both)")
     return unc, warnings
 
 
@@ -518,6 +668,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
             out["rear_end"] = d["rear_end"]
         else:
             out["width_walls_m"] = d["other_reading"]
+            if config.curved_flank_min_drop is not None and side is not None:
+                _curved_flank(out, rules, ends, b, z, side, d["bandwidth"], config)
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4

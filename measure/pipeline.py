@@ -83,6 +83,8 @@ class MeasureConfig:
     wall_min_share: float = 0.85
     wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
+    curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see
+                                                # measure.dimensions.DimensionConfig)
     bootstrap: int = 30
     seed: int = 0
 
@@ -170,7 +172,7 @@ class Measurement:
             "warnings": self.details.get("warnings", []),
             "roof_support": self.details.get("roof_support"),
             # The second readings the uncertainty spans (measure.dimensions): the side walls' own width when
-            # the width came from a shoulder, else null; the roof level's and the top 0.5 % of the truck's
+            # the width came from a shoulder or a rounded flank's widest height, else null; the roof level's and the top 0.5 % of the truck's
             # points' heights (the height is one of them, see rules.height).
             "width_walls_m": self.details.get("width_walls_m"),
             "height_top_m": self.details.get("height_top_m"),
@@ -262,7 +264,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
                            roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap,
                            top_above_roof_sigmas=cfg.top_above_roof_sigmas, wall_facing_cos=cfg.wall_facing_cos,
-                           roof_facing_cos=cfg.roof_facing_cos)
+                           roof_facing_cos=cfg.roof_facing_cos, curved_flank_min_drop=cfg.curved_flank_min_drop)
     dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all

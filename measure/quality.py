@@ -101,12 +101,13 @@ def check_centre(m, centre_in: np.ndarray, source: str, config: TruckQualityConf
 
 
 def _truck_axes(m):
-    """Truck points in its own axes: along the length a, across b, height z; and the edges."""
+    """Truck points in its own axes: along the length a, across b, height z; and the edges (the side walls'
+    peaks where the width was read at a rounded flank's widest height)."""
     d = m.details
     xy = m.truck_xyz_ground[:, :2] - np.asarray(d["origin_xy_m"])
     a = xy @ np.asarray(d["axes_xy"]["length"])
     b = xy @ np.asarray(d["axes_xy"]["width"])
-    return a, b, m.truck_xyz_ground[:, 2], d["edges_m"]["length"], d["edges_m"]["width"]
+    return a, b, m.truck_xyz_ground[:, 2], d["edges_m"]["length"], d.get("width_wall_edges_m", d["edges_m"]["width"])
 
 
 def _coverage(along: np.ndarray, up: np.ndarray, span: tuple[float, float], height: float, grid) -> float:
