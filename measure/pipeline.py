@@ -172,8 +172,8 @@ class Measurement:
             "warnings": self.details.get("warnings", []),
             "roof_support": self.details.get("roof_support"),
             # The second readings the uncertainty spans (measure.dimensions): the side walls' own width when
-            # the width came from a shoulder or a rounded flank's widest height, else null; the roof level's and the top 0.5 % of the truck's
-            # points' heights (the height is one of them, see rules.height).
+            # the width came from a shoulder or a rounded flank's widest height, else null; the roof level's
+            # and the top 0.5 % of the truck's points' heights (the height is one of them, see rules.height).
             "width_walls_m": self.details.get("width_walls_m"),
             "height_top_m": self.details.get("height_top_m"),
             "height_roof_m": self.details.get("height_roof_m"),
