@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from measure.kde import linear_binning, local_maxima, lscv_bandwidth, refine_peak, smooth_counts
+from measure.kde import binned_kde, linear_binning, local_maxima, lscv_bandwidth, refine_peak, smooth_counts
 from measure.normals import point_normals
 
 log = logging.getLogger(__name__)
@@ -256,13 +256,9 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
 
 def _slice_outer_peak(x: np.ndarray, h: float) -> float:
     """Position (m) of the outermost density peak (towards larger x) holding >= 0.3 x the highest one."""
-    step = h / 4
-    lo = float(x.min()) - 4 * h
-    n = int((float(x.max()) + 4 * h - lo) / step) + 2
-    grid = lo + step * np.arange(n)
-    dens = smooth_counts(linear_binning(x, lo, step, n), step, h)
-    pk = local_maxima(dens, 0.3)
-    return refine_peak(grid, dens, int(pk[-1])) if len(pk) else float("nan")
+    d = binned_kde(x, bandwidth_m=h, step_m=h / 4)
+    pk = local_maxima(d.density, 0.3)
+    return refine_peak(d.grid_m, d.density, int(pk[-1])) if len(pk) else float("nan")
 
 
 def width_profile(b: np.ndarray, z: np.ndarray, facing: np.ndarray, mid: float, h: float, top: float,
@@ -362,16 +358,15 @@ def curved_flank_width(zs: np.ndarray, widths: np.ndarray, window: int, min_drop
 
 
 def _curved_flank(out: dict, rules: dict, ends: dict, b: np.ndarray, z: np.ndarray, facing: np.ndarray, h: float,
-                  cfg: DimensionConfig) -> None:
+                  top: float, cfg: DimensionConfig) -> None:
     """Replace the width in out (and its rule and edges) by a rounded flank's widest part when that is wider.
 
-    The peaks' reading becomes the other reading the uncertainty spans (``width_walls_m``): what is left of
-    the flank's inward pull and a flat wall's noise read as curvature are not told apart by the data.
+    top: the truck's top (m, the heights' 99.5 % quantile), which the profile's slices divide. The peaks'
+    reading becomes the other reading the uncertainty spans (``width_walls_m``): what is left of the flank's
+    inward pull and a flat wall's noise read as curvature are not told apart by the data.
     """
     w0, w1 = ends["width"]
-    top = float(np.quantile(z, 0.995))
     zs, widths = width_profile(b, z, facing, 0.5 * (w0 + w1), h, top, cfg.flank_slices)
-    out["width_profile_m"] = {"height_m": zs, "width_m": widths}
     v = curved_flank_width(zs, widths, cfg.flank_window, cfg.curved_flank_min_drop, cfg.flank_min_height * top)
     if v is None or v <= out["width_m"]:
         return
@@ -619,12 +614,9 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         # tail of stray points outside plain walls; a rounded flank's widest line, or a flat wall's
         # ripple): the uncertainty spans both (+-2 sigma).
         unc["width"] = float(np.hypot(unc["width"], abs(values["width"] - width_walls) / 2))
-        if rules["width"] == "curved_flank_vertex":
-            warnings.append(f"width {values['width']:.3g} m from the widest height of a rounded flank; the walls' density "
-                            f"peaks over all heights are {width_walls:.3g} m apart (the uncertainty covers both)")
-        else:
-            warnings.append(f"width {values['width']:.3g} m includes a wider part outside the side walls; the walls "
-                            f"alone are {width_walls:.3g} m apart (the uncertainty covers both)")
+        how = ("from the widest height of a rounded flank; the walls' density peaks over all heights are"
+               if rules["width"] == "curved_flank_vertex" else "includes a wider part outside the side walls; the walls alone are")
+        warnings.append(f"width {values['width']:.3g} m {how} {width_walls:.3g} m apart (the uncertainty covers both)")
     return unc, warnings
 
 
@@ -649,6 +641,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     dens_out, bw, rules, ends, boots, bw_rules = {}, {}, {}, {}, {}, {}
     side = None
     normals = None
+    top = float(np.quantile(z, 0.995))   # the top 0.5 %: the height's second reading, the width profile's range
     if config.wall_facing_cos is not None or config.roof_facing_cos is not None:
         normals = point_normals(xyz, config.normal_neighbours)
     if config.wall_facing_cos is not None:
@@ -669,7 +662,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         else:
             out["width_walls_m"] = d["other_reading"]
             if config.curved_flank_min_drop is not None and side is not None:
-                _curved_flank(out, rules, ends, b, z, side, d["bandwidth"], config)
+                _curved_flank(out, rules, ends, b, z, side, d["bandwidth"], top, config)
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -685,7 +678,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
             for rc, ru in _bootstrap_counts(hc, up_counts, config.bootstrap, rng)]
     boots["height"] = float(np.std(reps)) if reps else 0.0
     out["height_roof_m"] = float(height)
-    out["height_top_m"] = float(np.quantile(z, 0.995))
+    out["height_top_m"] = top
     # The roof's own noise is only needed by the opt-in top reading (a per-cell pass over the truck's points).
     if config.top_above_roof_sigmas is not None and hrule == "roof_peak":
         roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)
