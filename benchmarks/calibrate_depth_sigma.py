@@ -16,7 +16,8 @@ of those, per dimension and depth mode (rig baseline or motion stereo), taken as
 its dimensions the k calibrated on the others covers: what to expect on a seed not tuned on. Runs only from tuning seeds and
 tuning scenes: never the evaluation seed or the external renders.
 
-Run:  .venv/bin/python benchmarks/calibrate_depth_sigma.py RUN@SCENE ... [--quantile 0.9]
+Run:  .venv/bin/python benchmarks/calibrate_depth_sigma.py RUN@SCENE ... [--quantile 0.9] [--leave-one-out]
+      (in parts: ``... RUN@SCENE ... --rows-out part1.json``, then ``... --rows-in part1.json part2.json``)
 """
 
 from __future__ import annotations
@@ -69,11 +70,13 @@ def needed_k(run: Path, scene: Path) -> dict | None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("pairs", nargs="+", help="RUN_DIR@SCENE_DIR")
+    ap.add_argument("pairs", nargs="*", help="RUN_DIR@SCENE_DIR")
+    ap.add_argument("--rows-out", type=Path, help="also write the measured runs' needed k (JSON), to combine parts run apart")
+    ap.add_argument("--rows-in", type=Path, nargs="*", default=[], help="needed k written by --rows-out, taken as measured")
     ap.add_argument("--quantile", type=float, default=0.9)
     ap.add_argument("--leave-one-out", action="store_true", help="coverage of each seed folder under the k of the others")
     args = ap.parse_args()
-    rows = []
+    rows = [r for f in args.rows_in for r in json.loads(f.read_text())]
     for pair in args.pairs:
         run, scene = (Path(x) for x in pair.split("@"))
         r = needed_k(run, scene)
@@ -82,6 +85,8 @@ def main() -> None:
         rows.append(r)
         ks = " ".join(f"{d[0].upper()} {r['err'][d]:+6.2f}% k {r['k'][d]:.3f}" for d in DIMS)
         print(f"{run}: {r['mode']:4s} Z {r['Z_m']:.2f} m e_Z {1000 * r['e_z']:.2f} mm/px  {ks}")
+    if args.rows_out:
+        args.rows_out.write_text(json.dumps(rows))
     base = ReconstructionErrorModel()
     for mode, current in (("rig", base.rig_px), ("wide", base.wide_px)):
         sel = [r for r in rows if r["mode"] == mode]

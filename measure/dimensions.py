@@ -6,7 +6,9 @@ translation puts the ground at height 0, so z' is the height above the fitted gr
 - Height (Eq. 7, made robust): the highest height level carried by a real surface (the roof) —
   the highest peak of the height density holding at least ``roof_min_fraction`` of the points,
   moved up to the upward-facing points' peak within reach (``roof_facing_cos``) — never a single
-  highest point; fallback: a high quantile.
+  highest point; fallback: a high quantile. A rounded top (a tank's crest) has no such level: when
+  the top surface falls from the middle of the width towards the flanks (``rounded_top_min_drop``),
+  the height is the top 0.5 % of the points.
 - Length/width axes: PCA by SVD of the ground-projected points (u_1 length, u_2 width), then
   turned by at most a few degrees so the side walls project sharpest (PCA alone is biased by
   uneven coverage; the turn is recorded).
@@ -94,6 +96,15 @@ class DimensionConfig:
                                        # wider than the peaks' reading, which the uncertainty then spans
                                        # (``curved_flank_width``). None: off. Measured on 276 re-measured
                                        # tuning clouds: README, issue 12's twelfth round
+    rounded_top_min_drop: float | None = 0.07  # a rounded top (a tank's crest) has no roof level: the densest
+                                       # level found lies on its flank or on a lower cab roof. The top
+                                       # surface's profile across the width (``top_profile``) then falls from
+                                       # its middle to 0.8 of the half width on both sides by at least this
+                                       # share of the top (an elliptic tank on a chassis, its semi-axis a
+                                       # third of the height: 0.13; a flat roof: 0, a bulging one by under
+                                       # half its bulge); the height is then the top 0.5 % of the points
+                                       # (rule ``rounded_top_99.5``), and the uncertainty still spans the
+                                       # level found. None: off. Measured: README, issue 12's thirteenth round
     flank_slices: int = 20             # height slices of the width's profile (of the truck's top, 99.5 % quantile)
     flank_window: int = 4              # slices on each side of a profile maximum the quadratic is fitted to
     flank_min_height: float = 0.15     # slices below this share of the top are left out (wheels, ground remnants)
@@ -357,6 +368,50 @@ def curved_flank_width(zs: np.ndarray, widths: np.ndarray, window: int, min_drop
     return best
 
 
+def top_profile(a: np.ndarray, b: np.ndarray, z: np.ndarray, ends_length: tuple[float, float],
+                ends_width: tuple[float, float], n_bins: int = 24, min_points: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """The height of the truck's upper surface across its width.
+
+    a, b: points' positions on the length and width axes (m); z: heights above the ground (m); ends_length,
+    ends_width: the truck's ends on a and b (m). The footprint is cut into n_bins x n_bins cells; a cell's
+    upper surface is its points' 0.9 quantile of z (cells with under min_points points are left out), and a
+    width bin's is the 0.75 quantile of its cells' along the length: the body over most of the length, not
+    a lower cab or a gap between loads. Returns the width bins' centres as a fraction of the half width
+    (-1..1) and their surface heights (m; NaN where no cell counts).
+    """
+    (l0, l1), (w0, w1) = ends_length, ends_width
+    ia = np.floor((a - l0) / max(l1 - l0, 1e-12) * n_bins).astype(np.int64)
+    ib = np.floor((b - w0) / max(w1 - w0, 1e-12) * n_bins).astype(np.int64)
+    ok = (ia >= 0) & (ia < n_bins) & (ib >= 0) & (ib < n_bins)
+    key, zk = ia[ok] * n_bins + ib[ok], z[ok]
+    order = np.lexsort((zk, key))
+    key, zk = key[order], zk[order]
+    cells = np.arange(n_bins * n_bins)
+    start, stop = np.searchsorted(key, cells), np.searchsorted(key, cells, side="right")
+    n = stop - start
+    upper = np.full(n_bins * n_bins, np.nan)
+    has = n >= min_points
+    upper[has] = zk[start[has] + np.floor(0.9 * (n[has] - 1)).astype(np.int64)]
+    upper = upper.reshape(n_bins, n_bins)
+    prof = np.full(n_bins, np.nan)
+    for j in range(n_bins):
+        col = upper[:, j][np.isfinite(upper[:, j])]
+        if len(col):
+            prof[j] = np.quantile(col, 0.75)
+    return 2.0 * (np.arange(n_bins) + 0.5) / n_bins - 1.0, prof
+
+
+def rounded_top_drop(u: np.ndarray, prof: np.ndarray, top: float) -> float:
+    """How far (share of top) the upper surface falls from the middle third of the width to 0.7-0.85 of the
+    half width, the smaller of the two sides; NaN where a part has no surface. u, prof: ``top_profile``."""
+    def part(sel):
+        v = prof[sel & np.isfinite(prof)]
+        return float(np.median(v)) if len(v) else float("nan")
+    crest = part(np.abs(u) <= 0.3)
+    sides = [part((s * u >= 0.7) & (s * u <= 0.85)) for s in (-1, 1)]
+    return float(min(crest - sides[0], crest - sides[1]) / max(top, 1e-12))
+
+
 def _curved_flank(out: dict, rules: dict, ends: dict, b: np.ndarray, z: np.ndarray, facing: np.ndarray, h: float,
                   top: float, cfg: DimensionConfig) -> None:
     """Replace the width in out (and its rule and edges) by a rounded flank's widest part when that is wider.
@@ -603,8 +658,9 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
     if above > 3 * hz:  # a flat roof's own noise puts its top 0.5 % 2-2.6 noise sigmas above its level
         unc["height"] = float(np.hypot(unc["height"], above))
         if above > 0.01 * values["height"]:
-            if rules["height"] == "top_quantile_99.5":
-                warnings.append(f"height {values['height']:.3g} m from the top 0.5 % of the truck's points, {above:.3g} m "
+            if rules["height"] in ("top_quantile_99.5", "rounded_top_99.5"):
+                what = "a rounded top's (a crest, no roof level)" if rules["height"] == "rounded_top_99.5" else "the truck's"
+                warnings.append(f"height {values['height']:.3g} m from the top 0.5 % of {what} points, {above:.3g} m "
                                 f"above the densest roof level at {height_roof:.3g} m (the uncertainty covers both)")
             else:
                 warnings.append(f"height {values['height']:.3g} m from the roof level; 0.5 % of the truck's points reach "
@@ -679,6 +735,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     boots["height"] = float(np.std(reps)) if reps else 0.0
     out["height_roof_m"] = float(height)
     out["height_top_m"] = top
+    if config.rounded_top_min_drop is not None and hrule == "roof_peak":
+        drop = rounded_top_drop(*top_profile(a, b, z, ends["length"], ends["width"]), top)
+        out["rounded_top_drop"] = drop if np.isfinite(drop) else None   # None: a part of the top not seen
+        if np.isfinite(drop) and drop >= config.rounded_top_min_drop:
+            height, hrule = top, "rounded_top_99.5"
     # The roof's own noise is only needed by the opt-in top reading (a per-cell pass over the truck's points).
     if config.top_above_roof_sigmas is not None and hrule == "roof_peak":
         roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)

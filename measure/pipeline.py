@@ -70,6 +70,9 @@ class MeasureConfig:
     max_height_to_width: float = 4.0
     ambiguity_ratio: float = 0.8             # runner-up volume >= this x the best => refuse to guess
     min_volume_rel: float = 0.1              # with a centre hint, clusters below this x the largest volume do not compete
+    max_hint_distance_rel: float | None = 0.15  # with an orbit's centre as the hint, the chosen cluster's footprint lies
+                                             # within this x its length of it, else no truck is at the hint (refused;
+                                             # None: off). A user's --centre is judged by quality.check_centre instead
     merge_gap_res: float = 15.0              # clusters in line with the truck within this gap join it (a cab across
                                              # the gap to its box); 0 disables (the paper's single cluster)
     # Dimension rules (see measure.dimensions).
@@ -84,6 +87,8 @@ class MeasureConfig:
     wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see
+                                                # measure.dimensions.DimensionConfig)
+    rounded_top_min_drop: float | None = 0.07   # a rounded top's height from its top 0.5 % of points (None: off; see
                                                 # measure.dimensions.DimensionConfig)
     bootstrap: int = 30
     seed: int = 0
@@ -177,6 +182,7 @@ class Measurement:
             "width_walls_m": self.details.get("width_walls_m"),
             "height_top_m": self.details.get("height_top_m"),
             "height_roof_m": self.details.get("height_roof_m"),
+            "rounded_top_drop": self.details.get("rounded_top_drop"),
             "bootstrap_std_m": self.details.get("bootstrap_std_m"),
         })
 
@@ -264,7 +270,8 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
                            roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap,
                            top_above_roof_sigmas=cfg.top_above_roof_sigmas, wall_facing_cos=cfg.wall_facing_cos,
-                           roof_facing_cos=cfg.roof_facing_cos, curved_flank_min_drop=cfg.curved_flank_min_drop)
+                           roof_facing_cos=cfg.roof_facing_cos, curved_flank_min_drop=cfg.curved_flank_min_drop,
+                           rounded_top_min_drop=cfg.rounded_top_min_drop)
     dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
@@ -404,7 +411,7 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
     above: points above the ground (input frame); xyz_g: the same in the ground frame. Adds 'fof' and 'truck' to timings.
     """
     from measure.fof import fof_clusters
-    from measure.truck import TruckFilter, merge_truck_parts, select_truck
+    from measure.truck import TruckFilter, check_hint_distance, merge_truck_parts, select_truck
 
     eps = cfg.eps_m or cfg.eps_res * res
     t = time.perf_counter()
@@ -427,6 +434,8 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
         parts = [chosen]
     cstats["merged_labels"] = parts
     in_truck = np.isin(labels, parts)
+    if centre_xy is not None and cfg.max_hint_distance_rel is not None:
+        cstats["hint_distance_m"] = check_hint_distance(xyz_g[in_truck], centre_xy, cfg.max_hint_distance_rel, source)
     timings["truck"] = time.perf_counter() - t
     return xyz_g[in_truck], in_truck, filt, eps, cstats
 
@@ -519,7 +528,10 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     recorded = Path(record_path) if record_path is not None else cloud_path.resolve()
     name = str(record_path) if record_path is not None else str(cloud_path)
     centre = None if centre_hint is None else np.asarray(centre_hint, float) * (UNITS_M[units] if centre_strict else 1.0)
-    m = measure_points(pts, config, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=name)
+    # A user's --centre is a point near the truck, judged by check_centre (within its length); an orbit's
+    # centre lies on or next to the footprint of the truck circled.
+    hint_cfg = dataclasses.replace(config, max_hint_distance_rel=None) if centre_strict else config
+    m = measure_points(pts, hint_cfg, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=name)
     gates = _quality_gates(m, scale, units, name, centre if centre_strict else None, checks, camera_centres)
     values = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
     uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma, reconstruction_abs_m)

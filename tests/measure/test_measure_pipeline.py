@@ -232,3 +232,41 @@ def test_a_fragment_nearer_the_centre_hint_is_not_taken_for_the_truck():
     xyz4, labels4 = np.concatenate([truck, overlapping]), np.r_[np.zeros(len(truck), int), np.ones(len(overlapping), int)]
     with pytest.raises(StageError, match="two equally plausible trucks both cover the centre hint"):
         select_truck(xyz4, labels4, filt, np.array([1.2, 0.0]))
+
+
+def test_a_vehicle_away_from_the_orbit_centre_is_not_measured_in_place_of_the_truck():
+    """The truck the drone circled came out as scraps under the cluster filters (a plain model box on seed 2041),
+    and a taller vehicle 1.5 widths beside it was the only truck-like cluster: it was measured as the truck (H +27 %).
+    The orbit's centre lies on or next to the truck circled; a truck chosen 0.15 of its length or more away is
+    refused, naming it. A hint a tenth of the length off the truck's footprint still picks the truck, and so does
+    one beside a fragment of it that the merged parts cover."""
+    from measure.truck import TruckFilter, check_hint_distance, merge_truck_parts, select_truck
+
+    rng = np.random.default_rng(17)
+
+    def box(lo, hi, n):
+        p = lo + rng.random((n, 3)) * (np.asarray(hi) - lo)
+        face = rng.integers(0, 3, n)
+        side = rng.integers(0, 2, n)
+        p[np.arange(n), face] = np.where(side == 1, np.asarray(hi)[face], np.asarray(lo)[face])
+        return p
+
+    other = box(np.array([0.2, 0.5, 0.0]), np.array([1.7, 0.85, 0.65]), 30_000)     # taller, 1.5 widths to the side
+    scraps = box(np.array([0.0, -0.15, 0.0]), np.array([1.8, 0.15, 0.5]), 2_000)    # the truck: too few points per cluster
+    xyz = np.concatenate([other, scraps])
+    labels = np.r_[np.zeros(len(other), int), 1 + rng.integers(0, 20, len(scraps))]
+    filt = TruckFilter(min_points=300, max_points=None, min_length_m=0.05, max_length_m=None, min_width_m=0.01, min_height_m=0.01)
+    hint = np.array([0.9, 0.0])
+    chosen = select_truck(xyz, labels, filt, hint)[0]
+    assert chosen == 0                                                                 # the wrong vehicle, as before
+    with pytest.raises(StageError, match=r"no truck-like cluster at the centre hint: the nearest \(1.5 x 0.35\d* x 0.65 m\) lies 0.49\d m from it, 0.33 x its length"):
+        check_hint_distance(xyz[labels == chosen], hint, 0.15)
+    truck = box(np.array([0.0, -0.15, 0.0]), np.array([1.8, 0.15, 0.5]), 30_000)
+    assert check_hint_distance(truck, np.array([0.9, -0.15 - 0.18]), 0.15) > 0.17    # 0.1 L off its footprint: kept
+    # The truck in two parts across a gap: the part nearest the hint is short, the merged truck covers the hint.
+    front, rear = truck[truck[:, 0] > 1.45], truck[truck[:, 0] < 1.35]
+    xyz2, labels2 = np.concatenate([front, rear, other]), np.r_[np.zeros(len(front), int), np.ones(len(rear), int), np.full(len(other), 2)]
+    hint2 = np.array([1.4, 0.0])
+    parts = merge_truck_parts(xyz2, labels2, select_truck(xyz2, labels2, filt, hint2)[0], 0.15, 60)
+    assert sorted(parts) == [0, 1]
+    assert check_hint_distance(xyz2[np.isin(labels2, parts)], hint2, 0.15) == 0.0
