@@ -642,7 +642,8 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         # A barely seen roof: its peak sits on the smoothed top edge of the walls, which pulls
         # it down by up to a few bandwidths; say so and widen the uncertainty accordingly.
         unc["height"] = float(np.hypot(unc["height"], 3 * hz))
-        warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
+        if rules["height"] != "rounded_top_99.5":   # a crest is no roof: its height is not read at a level
+            warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
     for name in ("length", "width"):
         if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder", "curved_flank_vertex"):
             warnings.append(f"{name} from the fallback rule '{rules[name]}' (the paper's peak rule did not apply)")
@@ -659,8 +660,8 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         unc["height"] = float(np.hypot(unc["height"], above))
         if above > 0.01 * values["height"]:
             if rules["height"] in ("top_quantile_99.5", "rounded_top_99.5"):
-                what = "a rounded top's (a crest, no roof level)" if rules["height"] == "rounded_top_99.5" else "the truck's"
-                warnings.append(f"height {values['height']:.3g} m from the top 0.5 % of {what} points, {above:.3g} m "
+                what = "a rounded top's points (a crest, no roof level)" if rules["height"] == "rounded_top_99.5" else "the truck's points"
+                warnings.append(f"height {values['height']:.3g} m from the top 0.5 % of {what}, {above:.3g} m "
                                 f"above the densest roof level at {height_roof:.3g} m (the uncertainty covers both)")
             else:
                 warnings.append(f"height {values['height']:.3g} m from the roof level; 0.5 % of the truck's points reach "

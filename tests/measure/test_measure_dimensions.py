@@ -212,6 +212,8 @@ def test_a_sparsely_seen_tank_crest_is_read_at_its_top_not_at_a_lower_density_le
     m = measure_dimensions(xyz, resolution_m=0.005, noise_m=0.003)
     assert m["rules"]["height"] == "rounded_top_99.5", m["rules"]
     assert m["rounded_top_drop"] > 0.1, m["rounded_top_drop"]   # a circle of radius 0.44 H: 0.4 R / H = 0.18
+    # Its crest is no roof: the report does not warn that a roof level may read low.
+    assert not any("roof barely seen" in w for w in m["warnings"]), m["warnings"]
     for cfg in (DimensionConfig(), replace(DimensionConfig(), rounded_top_min_drop=None, top_above_roof_sigmas=3.0)):
         m = measure_dimensions(xyz, resolution_m=0.005, noise_m=0.003, config=cfg)
         assert abs(m["height_m"] - H) < 0.02 * H, (m["height_m"], H)
