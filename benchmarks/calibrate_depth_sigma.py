@@ -76,6 +76,8 @@ def main() -> None:
     ap.add_argument("--quantile", type=float, default=0.9)
     ap.add_argument("--leave-one-out", action="store_true", help="coverage of each seed folder under the k of the others")
     args = ap.parse_args()
+    if not args.pairs and not args.rows_in:
+        ap.error("give RUN_DIR@SCENE_DIR pairs to measure, or --rows-in files written by --rows-out")
     rows = [r for f in args.rows_in for r in json.loads(f.read_text())]
     for pair in args.pairs:
         run, scene = (Path(x) for x in pair.split("@"))
