@@ -49,13 +49,14 @@ def remeasure(run: Path, scene: Path, overrides: dict | None = None) -> dict:
             return {"name": run.name, "failed": str(err)}
     err = {d: 100 * (res[f"{d}_m"] / truth[f"{d}_m"] - 1) for d in DIMS}
     z = {d: abs(res[f"{d}_m"] - truth[f"{d}_m"]) / max(res["uncertainty_m"][d], 1e-12) for d in DIMS}
-    gated = any(c["status"] == "fail" for c in res.get("data_quality", {}).get("checks", []))
+    failing = [c["name"] for c in res.get("data_quality", {}).get("checks", []) if c["status"] == "fail"]
+    gated = bool(failing)
     # Judged as `bench` judges a full-scale draw (a model's verdict is not applicable).
     expected = (truth.get("over_limit_expectation") or {}).get("verdict")
     right = (verdict_matches(expected, res["verdict"], {d: truth[f"{d}_m"] for d in DIMS})
              if expected in ("over-limit", "within-limits") else None)
-    return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "verdict": res["verdict"]["overall"],
-            "verdict_right": right}
+    return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "failing_checks": failing,
+            "rules": res.get("rules", {}), "verdict": res["verdict"]["overall"], "verdict_right": right}
 
 
 def main(argv=None) -> int:
