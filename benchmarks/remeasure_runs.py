@@ -56,7 +56,8 @@ def remeasure(run: Path, scene: Path, overrides: dict | None = None) -> dict:
     right = (verdict_matches(expected, res["verdict"], {d: truth[f"{d}_m"] for d in DIMS})
              if expected in ("over-limit", "within-limits") else None)
     return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "failing_checks": failing,
-            "rules": res.get("rules", {}), "verdict": res["verdict"]["overall"], "verdict_right": right}
+            "rules": res.get("rules", {}), "rounded_top_drop": res.get("rounded_top_drop"),
+            "width_walls_m": res.get("width_walls_m"), "verdict": res["verdict"]["overall"], "verdict_right": right}
 
 
 def main(argv=None) -> int:

@@ -105,6 +105,25 @@ class DimensionConfig:
                                        # half its bulge); the height is then the top 0.5 % of the points
                                        # (rule ``rounded_top_99.5``), and the uncertainty still spans the
                                        # level found. None: off. Measured: README, issue 12's thirteenth round
+    wall_plateau_slices: int | None = 9  # vertical side walls are read from the width's height profile: the
+                                       # widest running median of this many of its slices (45 % of the top)
+                                       # replaces the peaks' reading (rule ``wall_plateau``), whose
+                                       # projection over all heights a rim flaring at the roof's or floor's
+                                       # edge, a tilted fused wall or a panel's paint stripe widens or
+                                       # narrows. Only stretches starting above ``flank_min_height`` count,
+                                       # and none where one starting lower is wider by more than the walls'
+                                       # blur (a deck, the wheels and a cab wider than a flatbed's load:
+                                       # the shoulder rule finds a deck's one-slice edge, the plateau reads
+                                       # the load), nor on a rounded flank (``curved_flank_vertex``); the
+                                       # uncertainty spans the peaks' reading too. None: off. Measured:
+                                       # README, issue 12's fourteenth round
+    wall_plateau_max_top_drop: float = 0.07  # ... and only under a top seen flat: its profile across the width
+                                       # (``rounded_top_drop``) falls by less than this share of the top
+    wall_plateau_min_outside_height: float = 0.5  # ... and where the peaks read wider, only when the points
+                                       # outside the plateau's walls lie at a median height of at least this
+                                       # share of the top: a box's fattened walls and flaring roof rim do
+                                       # (0.52-0.89 on 22 tuning clouds), a flatbed's deck and cab beside its
+                                       # narrower load do not (0.12-0.50 on 12 of 13)
     flank_slices: int = 20             # height slices of the width's profile (of the truck's top, 99.5 % quantile)
     flank_window: int = 4              # slices on each side of a profile maximum the quadratic is fitted to
     flank_min_height: float = 0.15     # slices below this share of the top are left out (wheels, ground remnants)
@@ -412,16 +431,16 @@ def rounded_top_drop(u: np.ndarray, prof: np.ndarray, top: float) -> float:
     return float(min(crest - sides[0], crest - sides[1]) / max(top, 1e-12))
 
 
-def _curved_flank(out: dict, rules: dict, ends: dict, b: np.ndarray, z: np.ndarray, facing: np.ndarray, h: float,
-                  top: float, cfg: DimensionConfig) -> None:
+def _curved_flank(out: dict, rules: dict, ends: dict, zs: np.ndarray, widths: np.ndarray, top: float,
+                  cfg: DimensionConfig) -> None:
     """Replace the width in out (and its rule and edges) by a rounded flank's widest part when that is wider.
 
-    top: the truck's top (m, the heights' 99.5 % quantile), which the profile's slices divide. The peaks'
+    zs, widths: the width's height profile (``width_profile``); top: the truck's top (m, the heights' 99.5 %
+    quantile), which the profile's slices divide. The peaks'
     reading becomes the other reading the uncertainty spans (``width_walls_m``): what is left of the flank's
     inward pull and a flat wall's noise read as curvature are not told apart by the data.
     """
     w0, w1 = ends["width"]
-    zs, widths = width_profile(b, z, facing, 0.5 * (w0 + w1), h, top, cfg.flank_slices)
     v = curved_flank_width(zs, widths, cfg.flank_window, cfg.curved_flank_min_drop, cfg.flank_min_height * top)
     if v is None or v <= out["width_m"]:
         return
@@ -433,6 +452,55 @@ def _curved_flank(out: dict, rules: dict, ends: dict, b: np.ndarray, z: np.ndarr
     out["width_m"] = float(v)
     ends["width"] = (w0 - grow, w1 + grow)
     rules["width"] = "curved_flank_vertex"
+
+
+def wall_plateau(widths: np.ndarray, window: int, first: int, tol: float = 0.0) -> tuple[float, int] | None:
+    """The side walls' widest stretch in a width profile (``width_profile``): the highest median over
+    ``window`` consecutive slices, a majority of them valid, among the stretches starting at slice ``first``
+    or above, and the index of its first slice. None when no such stretch has a majority, or when a stretch
+    starting lower is wider by more than tol (m): the widest part then stands on the ground (a flatbed's
+    deck, wheels and cab beside its narrower load), not the body's walls. widths: per slice (m, NaN where a
+    slice does not count).
+    """
+    def medians(starts):
+        for i in starts:
+            seg = widths[i:i + window]
+            seg = seg[np.isfinite(seg)]
+            if len(seg) > window // 2:
+                yield float(np.median(seg)), i
+    up = max(medians(range(first, len(widths) - window + 1)), default=None, key=lambda r: r[0])
+    low = max(medians(range(0, min(first, len(widths) - window + 1))), default=None, key=lambda r: r[0])
+    if up is None or (low is not None and low[0] > up[0] + tol):
+        return None
+    return up
+
+
+def _plateau_width(out: dict, rules: dict, ends: dict, widths: np.ndarray, blur: float, cfg: DimensionConfig,
+                   outside_height=None) -> None:
+    """Replace the width in out (and its rule and edges) by the side walls' plateau (``wall_plateau``) when
+    the two differ by more than blur (m: the walls' own scatter, hypot(noise, bandwidth)); within it they
+    are one reading and the paper's peaks stand. Where the peaks' reading is the wider, it also stands when
+    outside_height(mid, half width) (the median height of the points outside the plateau's walls, as a
+    share of the top) is under ``wall_plateau_min_outside_height``: the wider part is low on the truck (a
+    flatbed's deck and cab beside its narrower load), not the walls' own scatter or a rim at the roof.
+
+    The peaks' reading becomes the other reading the uncertainty spans (``width_walls_m``); the face gates
+    still look for the walls at the peaks' edges.
+    """
+    first = int(np.ceil(cfg.flank_min_height * len(widths) - 1e-9))
+    r = wall_plateau(widths, cfg.wall_plateau_slices, first, blur)
+    if r is None or abs(r[0] - out["width_m"]) <= blur:
+        return
+    w0, w1 = ends["width"]
+    mid = 0.5 * (w0 + w1)
+    if (out["width_m"] > r[0] and outside_height is not None
+            and outside_height(mid, 0.5 * r[0] + blur) < cfg.wall_plateau_min_outside_height):
+        return
+    out["width_wall_edges_m"] = (w0, w1)
+    out["width_walls_m"] = out["width_m"]
+    out["width_m"] = float(r[0])
+    ends["width"] = (mid - 0.5 * r[0], mid + 0.5 * r[0])
+    rules["width"] = "wall_plateau"
 
 
 def _length_rule(counts, grid, h, step, cfg: DimensionConfig):
@@ -533,7 +601,7 @@ def refine_heading(xy: np.ndarray, u1: np.ndarray, resolution_m: float, max_turn
 
 
 # Fallback edges per rule: an edge taken from an extreme is pushed outwards by the noise (uncertainty).
-_EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "curved_flank_vertex": 0, "one_peak_plus_extreme": 1,
+_EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "curved_flank_vertex": 0, "wall_plateau": 0, "one_peak_plus_extreme": 1,
                   "rear_peak_to_front_peak": 0, "rear_peak_to_front_extreme": 1, "robust_extent": 2}
 
 
@@ -645,7 +713,8 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         if rules["height"] != "rounded_top_99.5":   # a crest is no roof: its height is not read at a level
             warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
     for name in ("length", "width"):
-        if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder", "curved_flank_vertex"):
+        if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder", "curved_flank_vertex",
+                               "wall_plateau"):
             warnings.append(f"{name} from the fallback rule '{rules[name]}' (the paper's peak rule did not apply)")
     # Points above the roof level that the noise does not explain: the roof level is a lower surface (a
     # sparse or sagging roof, a tank's rounded crest, a cab or wall top below it), or stray points sit above
@@ -671,8 +740,9 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         # tail of stray points outside plain walls; a rounded flank's widest line, or a flat wall's
         # ripple): the uncertainty spans both (+-2 sigma).
         unc["width"] = float(np.hypot(unc["width"], abs(values["width"] - width_walls) / 2))
-        how = ("from the widest height of a rounded flank; the walls' density peaks over all heights are"
-               if rules["width"] == "curved_flank_vertex" else "includes a wider part outside the side walls; the walls alone are")
+        how = {"curved_flank_vertex": "from the widest height of a rounded flank; the walls' density peaks over all heights are",
+               "wall_plateau": "from the side walls' widest stretch of heights; their density peaks over all heights are"
+               }.get(rules["width"], "includes a wider part outside the side walls; the walls alone are")
         warnings.append(f"width {values['width']:.3g} m {how} {width_walls:.3g} m apart (the uncertainty covers both)")
     return unc, warnings
 
@@ -698,6 +768,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     dens_out, bw, rules, ends, boots, bw_rules = {}, {}, {}, {}, {}, {}
     side = None
     normals = None
+    plateau_args = None
     top = float(np.quantile(z, 0.995))   # the top 0.5 %: the height's second reading, the width profile's range
     if config.wall_facing_cos is not None or config.roof_facing_cos is not None:
         normals = point_normals(xyz, config.normal_neighbours)
@@ -718,8 +789,12 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
             out["rear_end"] = d["rear_end"]
         else:
             out["width_walls_m"] = d["other_reading"]
-            if config.curved_flank_min_drop is not None and side is not None:
-                _curved_flank(out, rules, ends, b, z, side, d["bandwidth"], top, config)
+            if side is not None and (config.curved_flank_min_drop is not None or config.wall_plateau_slices is not None):
+                w0, w1 = ends["width"]
+                zs, widths = width_profile(b, z, side, 0.5 * (w0 + w1), d["bandwidth"], top, config.flank_slices)
+                if config.curved_flank_min_drop is not None:
+                    _curved_flank(out, rules, ends, zs, widths, top, config)
+                plateau_args = (widths, float(np.hypot(noise_m, d["bandwidth"])))
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -736,11 +811,20 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     boots["height"] = float(np.std(reps)) if reps else 0.0
     out["height_roof_m"] = float(height)
     out["height_top_m"] = top
-    if config.rounded_top_min_drop is not None and hrule == "roof_peak":
+    drop = float("nan")
+    if (config.rounded_top_min_drop is not None and hrule == "roof_peak") or plateau_args is not None:
         drop = rounded_top_drop(*top_profile(a, b, z, ends["length"], ends["width"]), top)
         out["rounded_top_drop"] = drop if np.isfinite(drop) else None   # None: a part of the top not seen
-        if np.isfinite(drop) and drop >= config.rounded_top_min_drop:
-            height, hrule = top, "rounded_top_99.5"
+    if config.rounded_top_min_drop is not None and hrule == "roof_peak" and np.isfinite(drop) and drop >= config.rounded_top_min_drop:
+        height, hrule = top, "rounded_top_99.5"
+    # Vertical walls under a top seen flat: their plateau is the width (a rounded top has rounded flanks,
+    # whose plateau lies inside their widest line).
+    if (plateau_args is not None and config.wall_plateau_slices is not None and rules["width"] != "curved_flank_vertex"
+            and np.isfinite(drop) and drop < config.wall_plateau_max_top_drop):
+        def outside_height(mid: float, half: float) -> float:
+            z_out = z[np.abs(b - mid) > half]
+            return float(np.median(z_out)) / top if len(z_out) else 1.0
+        _plateau_width(out, rules, ends, *plateau_args, config, outside_height=outside_height)
     # The roof's own noise is only needed by the opt-in top reading (a per-cell pass over the truck's points).
     if config.top_above_roof_sigmas is not None and hrule == "roof_peak":
         roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)

@@ -88,6 +88,11 @@ class MeasureConfig:
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see
                                                 # measure.dimensions.DimensionConfig)
+    wall_plateau_slices: int | None = 9         # vertical walls' width from the profile's widest stretch of this many
+                                                # height slices of 20 (None: off; see measure.dimensions.DimensionConfig)
+    wall_plateau_max_top_drop: float = 0.07     # ... under a top seen flat (rounded_top_drop below this)
+    wall_plateau_min_outside_height: float = 0.5  # ... and, where the peaks read wider, with the points outside it at
+                                                # a median height of at least this share of the top
     rounded_top_min_drop: float | None = 0.07   # a rounded top's height from its top 0.5 % of points (None: off; see
                                                 # measure.dimensions.DimensionConfig)
     bootstrap: int = 30
@@ -271,7 +276,9 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
                            roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap,
                            top_above_roof_sigmas=cfg.top_above_roof_sigmas, wall_facing_cos=cfg.wall_facing_cos,
                            roof_facing_cos=cfg.roof_facing_cos, curved_flank_min_drop=cfg.curved_flank_min_drop,
-                           rounded_top_min_drop=cfg.rounded_top_min_drop)
+                           rounded_top_min_drop=cfg.rounded_top_min_drop, wall_plateau_slices=cfg.wall_plateau_slices,
+                           wall_plateau_max_top_drop=cfg.wall_plateau_max_top_drop,
+                           wall_plateau_min_outside_height=cfg.wall_plateau_min_outside_height)
     dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
