@@ -794,7 +794,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
                 zs, widths = width_profile(b, z, side, 0.5 * (w0 + w1), d["bandwidth"], top, config.flank_slices)
                 if config.curved_flank_min_drop is not None:
                     _curved_flank(out, rules, ends, zs, widths, top, config)
-                plateau_args = (widths, float(np.hypot(noise_m, d["bandwidth"])))
+                if config.wall_plateau_slices is not None:
+                    plateau_args = (widths, float(np.hypot(noise_m, d["bandwidth"])))
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -819,7 +820,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         height, hrule = top, "rounded_top_99.5"
     # Vertical walls under a top seen flat: their plateau is the width (a rounded top has rounded flanks,
     # whose plateau lies inside their widest line).
-    if (plateau_args is not None and config.wall_plateau_slices is not None and rules["width"] != "curved_flank_vertex"
+    if (plateau_args is not None and rules["width"] != "curved_flank_vertex"
             and np.isfinite(drop) and drop < config.wall_plateau_max_top_drop):
         def outside_height(mid: float, half: float) -> float:
             z_out = z[np.abs(b - mid) > half]
