@@ -122,8 +122,8 @@ class DimensionConfig:
     wall_plateau_min_outside_height: float = 0.5  # ... and where the peaks read wider, only when the points
                                        # outside the plateau's walls lie at a median height of at least this
                                        # share of the top: a box's fattened walls and flaring roof rim do
-                                       # (0.52-0.89 on 22 tuning clouds), a flatbed's deck and cab beside its
-                                       # narrower load do not (0.12-0.50 on 12 of 13)
+                                       # (0.52-0.89 on 20 tuning clouds), a flatbed's deck and cab beside its
+                                       # narrower load do not (0.12-0.50 on 10 of 11)
     flank_slices: int = 20             # height slices of the width's profile (of the truck's top, 99.5 % quantile)
     flank_window: int = 4              # slices on each side of a profile maximum the quadratic is fitted to
     flank_min_height: float = 0.15     # slices below this share of the top are left out (wheels, ground remnants)
