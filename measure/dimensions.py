@@ -475,13 +475,13 @@ def wall_plateau(widths: np.ndarray, window: int, first: int, tol: float = 0.0) 
     return up
 
 
-def _plateau_width(out: dict, rules: dict, ends: dict, widths: np.ndarray, blur: float, cfg: DimensionConfig,
-                   outside_height=None) -> None:
+def _plateau_width(out: dict, rules: dict, ends: dict, widths: np.ndarray, blur: float, b: np.ndarray, z: np.ndarray,
+                   top: float, cfg: DimensionConfig) -> None:
     """Replace the width in out (and its rule and edges) by the side walls' plateau (``wall_plateau``) when
     the two differ by more than blur (m: the walls' own scatter, hypot(noise, bandwidth)); within it they
     are one reading and the paper's peaks stand. Where the peaks' reading is the wider, it also stands when
-    outside_height(mid, half width) (the median height of the points outside the plateau's walls, as a
-    share of the top) is under ``wall_plateau_min_outside_height``: the wider part is low on the truck (a
+    the points outside the plateau's walls (b: their positions on the width axis, m) lie at a median height
+    (z, m) under ``wall_plateau_min_outside_height`` x top (m): the wider part is low on the truck (a
     flatbed's deck and cab beside its narrower load), not the walls' own scatter or a rim at the roof.
 
     The peaks' reading becomes the other reading the uncertainty spans (``width_walls_m``); the face gates
@@ -493,9 +493,10 @@ def _plateau_width(out: dict, rules: dict, ends: dict, widths: np.ndarray, blur:
         return
     w0, w1 = ends["width"]
     mid = 0.5 * (w0 + w1)
-    if (out["width_m"] > r[0] and outside_height is not None
-            and outside_height(mid, 0.5 * r[0] + blur) < cfg.wall_plateau_min_outside_height):
-        return
+    if out["width_m"] > r[0]:
+        z_out = z[np.abs(b - mid) > 0.5 * r[0] + blur]
+        if len(z_out) and float(np.median(z_out)) < cfg.wall_plateau_min_outside_height * top:
+            return
     out["width_wall_edges_m"] = (w0, w1)
     out["width_walls_m"] = out["width_m"]
     out["width_m"] = float(r[0])
@@ -768,7 +769,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     dens_out, bw, rules, ends, boots, bw_rules = {}, {}, {}, {}, {}, {}
     side = None
     normals = None
-    plateau_args = None
+    plateau_widths = None   # the width's height profile, kept for the walls' plateau (None: not read)
+    wall_blur = 0.0
     top = float(np.quantile(z, 0.995))   # the top 0.5 %: the height's second reading, the width profile's range
     if config.wall_facing_cos is not None or config.roof_facing_cos is not None:
         normals = point_normals(xyz, config.normal_neighbours)
@@ -795,7 +797,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
                 if config.curved_flank_min_drop is not None:
                     _curved_flank(out, rules, ends, zs, widths, top, config)
                 if config.wall_plateau_slices is not None:
-                    plateau_args = (widths, float(np.hypot(noise_m, d["bandwidth"])))
+                    plateau_widths, wall_blur = widths, float(np.hypot(noise_m, d["bandwidth"]))
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -813,19 +815,16 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     out["height_roof_m"] = float(height)
     out["height_top_m"] = top
     drop = float("nan")
-    if (config.rounded_top_min_drop is not None and hrule == "roof_peak") or plateau_args is not None:
+    if (config.rounded_top_min_drop is not None and hrule == "roof_peak") or plateau_widths is not None:
         drop = rounded_top_drop(*top_profile(a, b, z, ends["length"], ends["width"]), top)
         out["rounded_top_drop"] = drop if np.isfinite(drop) else None   # None: a part of the top not seen
     if config.rounded_top_min_drop is not None and hrule == "roof_peak" and np.isfinite(drop) and drop >= config.rounded_top_min_drop:
         height, hrule = top, "rounded_top_99.5"
     # Vertical walls under a top seen flat: their plateau is the width (a rounded top has rounded flanks,
     # whose plateau lies inside their widest line).
-    if (plateau_args is not None and rules["width"] != "curved_flank_vertex"
+    if (plateau_widths is not None and rules["width"] != "curved_flank_vertex"
             and np.isfinite(drop) and drop < config.wall_plateau_max_top_drop):
-        def outside_height(mid: float, half: float) -> float:
-            z_out = z[np.abs(b - mid) > half]
-            return float(np.median(z_out)) / top if len(z_out) else 1.0
-        _plateau_width(out, rules, ends, *plateau_args, config, outside_height=outside_height)
+        _plateau_width(out, rules, ends, plateau_widths, wall_blur, b, z, top, config)
     # The roof's own noise is only needed by the opt-in top reading (a per-cell pass over the truck's points).
     if config.top_above_roof_sigmas is not None and hrule == "roof_peak":
         roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)

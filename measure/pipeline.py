@@ -272,13 +272,8 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
         noise_m = float(min(noise_m, np.median(g.local_sigma[g.keep][in_truck])))
 
     t = time.perf_counter()
-    dcfg = DimensionConfig(peak_min_rel=cfg.peak_min_rel, end_window=cfg.end_window, extreme_fraction=cfg.extreme_fraction,
-                           roof_min_fraction=cfg.roof_min_fraction, wall_min_share=cfg.wall_min_share, bootstrap=cfg.bootstrap,
-                           top_above_roof_sigmas=cfg.top_above_roof_sigmas, wall_facing_cos=cfg.wall_facing_cos,
-                           roof_facing_cos=cfg.roof_facing_cos, curved_flank_min_drop=cfg.curved_flank_min_drop,
-                           rounded_top_min_drop=cfg.rounded_top_min_drop, wall_plateau_slices=cfg.wall_plateau_slices,
-                           wall_plateau_max_top_drop=cfg.wall_plateau_max_top_drop,
-                           wall_plateau_min_outside_height=cfg.wall_plateau_min_outside_height)
+    # The dimension rules' parameters are the MeasureConfig fields of the same names.
+    dcfg = DimensionConfig(**{f.name: getattr(cfg, f.name) for f in fields(DimensionConfig) if hasattr(cfg, f.name)})
     dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
