@@ -70,6 +70,17 @@ class DisparityConfig:
     # Gaps whose ends differ by at most this (px, + 0.1 px per px of gap) lie on one surface and are
     # interpolated, not filled with the farther end (None: always the farther end).
     fill_same_surface_px: float | None = 1.0
+    # Fill a run with its farther end only when the run is no wider than the disparity step across it plus
+    # this slack (px): an occlusion's width is that step; a wider run is unmatched surface (plain paint),
+    # which the farther end would put behind the truck (None: any run up to fill_max_px).
+    fill_occlusion_slack_px: float | None = None
+    # Pixels whose texture the image noise drowns are invalid before the fill: the x-gradient's RMS over
+    # texture_window_px (odd) below min_texture_snr x the noise's own (sigma estimated per image, Immerkaer
+    # 1996). Why: on plain paint (a black roof: contrast under a grey level) SGBM's paths carry the disparity
+    # in from where they enter the region, often the background's, which puts the panel behind the truck
+    # and carves the fused surface there. None: off.
+    min_texture_snr: float | None = None
+    texture_window_px: int = 9
     # Median filter on the final map (0 = off, 3 or 5; OpenCV supports only these for float images).
     median_px: int = 5
     # Sub-pixel refinement window (odd px; None = off): a Lucas-Kanade fit of the disparity (plus a
@@ -92,6 +103,12 @@ class DisparityConfig:
             raise ConfigError(f"subpixel_window_px={self.subpixel_window_px}: must be an odd number >= 3 (or None)")
         if self.median_px not in (0, 1, 3, 5):
             raise ConfigError(f"median_px={self.median_px}: must be 0, 3 or 5")
+        if self.min_texture_snr is not None and not self.min_texture_snr > 0:
+            raise ConfigError(f"min_texture_snr={self.min_texture_snr}: must be > 0 (or None)")
+        if self.texture_window_px < 3 or self.texture_window_px % 2 == 0:
+            raise ConfigError(f"texture_window_px={self.texture_window_px}: must be an odd number >= 3")
+        if self.fill_occlusion_slack_px is not None and not self.fill_occlusion_slack_px >= 0:
+            raise ConfigError(f"fill_occlusion_slack_px={self.fill_occlusion_slack_px}: must be >= 0 (or None)")
         if not 0 <= self.pre_filter_cap <= 63:
             raise ConfigError(f"pre_filter_cap={self.pre_filter_cap}: must be in 0..63")
 
@@ -186,7 +203,7 @@ def _prepare(img: np.ndarray, use_color: bool) -> np.ndarray:
 
 
 def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
-                          same_surface_px: float | None = None) -> np.ndarray:
+                          same_surface_px: float | None = None, occlusion_slack_px: float | None = None) -> np.ndarray:
     """Fill NaN runs in each row with the smaller of the two bounding valid disparities.
 
     disp_px: (H, W) float32, NaN = invalid. Occluded pixels belong to the background, which
@@ -194,7 +211,9 @@ def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
     Runs longer than ``max_gap_px`` (None = no limit) stay NaN. When ``same_surface_px`` is
     given, a run whose two neighbours differ by at most that plus 0.1 px per px of run length
     (one surface, e.g. unmatched weak texture on a slanted panel, not an occlusion) is filled
-    by linear interpolation instead: the lower neighbour would put the whole run too far.
+    by linear interpolation instead: the lower neighbour would put the whole run too far. When
+    ``occlusion_slack_px`` is given, a run is filled with the lower neighbour only when it is no wider
+    than the two neighbours' difference plus that slack (an occlusion's width); wider runs stay NaN.
     Returns a new array.
     """
     d = np.asarray(disp_px, dtype=np.float32)
@@ -230,10 +249,46 @@ def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
             step = d_right - d_left
             one = np.isfinite(step) & (np.abs(step) <= same_surface_px + 0.1 * gap)
             fill = np.where(one, d_left + t * np.where(one, step, 0.0), fill)
+    if occlusion_slack_px is not None:
+        with np.errstate(invalid="ignore"):
+            step_abs = np.abs(d_right - d_left)
+            occl = ~np.isfinite(step_abs) | ((rc - lc - 1) <= step_abs + occlusion_slack_px)
+        if same_surface_px is not None:
+            occl |= one
+        fill = np.where(occl, fill, np.nan)
     fill[~np.isfinite(fill)] = np.nan
     out = d.copy()
     out.ravel()[holes] = fill
     return out
+
+
+def image_noise_sigma(img: np.ndarray) -> float:
+    """The image's noise sigma (grey levels), Immerkaer's (1996) Laplacian-difference estimate.
+
+    img: (H, W) grey or (H, W, 3) BGR (converted to grey). Robust to edges and texture because the
+    3x3 kernel cancels locally linear intensity; the estimate is the mean absolute response scaled.
+    """
+    import cv2
+
+    g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(g.astype(np.float32), -1, k)[1:-1, 1:-1]
+    return float(np.sqrt(np.pi / 2.0) / 6.0 * np.mean(np.abs(r)))
+
+
+def texture_snr(img: np.ndarray, window_px: int = 9) -> np.ndarray:
+    """Per pixel, the RMS of the x-gradient (3x3 Sobel) over window_px x window_px divided by the RMS the
+    image noise alone gives it (sqrt(12) sigma): ~1 on plain paint, >> 1 where there is texture to match.
+
+    img: (H, W) grey or (H, W, 3) BGR. Returns (H, W) float32.
+    """
+    import cv2
+
+    g = (img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)).astype(np.float32)
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    e = cv2.boxFilter(gx * gx, -1, (int(window_px), int(window_px)))
+    sigma = max(image_noise_sigma(g), 0.25)   # a noiseless image: a quarter grey level (8-bit quantisation)
+    return np.sqrt(np.maximum(e, 0.0)) / np.float32(np.sqrt(12.0) * sigma)
 
 
 def _median_valid(d: np.ndarray, k: int) -> np.ndarray:
@@ -295,8 +350,10 @@ def disparity_map(left_rect_gray: np.ndarray, right_rect_gray: np.ndarray,
     if config.subpixel_window_px is not None:
         disp = refine_subpixel(left, right, disp, config.subpixel_window_px, config.subpixel_iterations,
                                config.subpixel_max_step_px)
+    if config.min_texture_snr is not None:
+        disp[texture_snr(left_rect_gray, config.texture_window_px) < config.min_texture_snr] = np.nan
     if config.fill_holes:
-        disp = fill_holes_background(disp, config.fill_max_px, config.fill_same_surface_px)
+        disp = fill_holes_background(disp, config.fill_max_px, config.fill_same_surface_px, config.fill_occlusion_slack_px)
     if config.median_px in (3, 5):
         disp = _median_valid(disp, config.median_px)
     return disp

@@ -11,7 +11,9 @@ from stereo_recon.disparity import (
     disparity_map,
     disparity_range_for_depth,
     fill_holes_background,
+    image_noise_sigma,
     preset,
+    texture_snr,
 )
 from stereo_recon.core.errors import ConfigError
 from stereo_recon.evaluation import bad_pixel_rate, load_middlebury_2014
@@ -49,6 +51,54 @@ def test_fill_holes_takes_background():
     limited = fill_holes_background(d, max_gap_px=1)
     np.testing.assert_allclose(limited[0, [0, 3, 4, 5, 6]], [5, 9, 3, 3, 3])
     assert np.isnan(limited[0, 1:3]).all()
+
+
+def test_fill_occlusion_only_as_wide_as_the_step():
+    # A run as wide as the disparity step across it is an occlusion (the background's); a wider run is
+    # unmatched surface and stays invalid; a run between two ends on one surface is interpolated.
+    d = np.array([[10.0] + [np.nan] * 6 + [5.0, np.nan, np.nan, 9.0, np.nan, np.nan, 9.4]], np.float32)
+    out = fill_holes_background(d, same_surface_px=1.0, occlusion_slack_px=0.0)
+    assert np.isnan(out[0, 1:7]).all()                  # 6 px between 10 and 5: wider than the 5 px step
+    np.testing.assert_allclose(out[0, 8:10], [5, 5])    # 2 px between 5 and 9: an occlusion, the background
+    np.testing.assert_allclose(out[0, 11:13], [9.0 + 0.4 / 3, 9.0 + 0.8 / 3], rtol=1e-5)  # one surface
+    np.testing.assert_allclose(fill_holes_background(d, occlusion_slack_px=1.0)[0, 1:7], 5.0)  # 6 <= 5 + 1
+
+
+def _plain_panel_pair(rng, sigma=1.5, d_bg=6, d_fg=16):
+    """A textured background at d_bg px with a plain panel (one grey level) at d_fg px in front of it,
+    both eyes with pixel noise sigma: (left, right, panel's core slice)."""
+    import cv2
+
+    h, w = 160, 320
+    small = rng.integers(0, 256, (h // 4, (w + 64) // 4), dtype=np.uint8)
+    bg = cv2.resize(small, (w + 64, h), interpolation=cv2.INTER_CUBIC).astype(np.float32)
+    left, right = bg[:, 32:32 + w].copy(), bg[:, 32 + d_bg:32 + d_bg + w].copy()
+    left[40:120, 120:220] = 20.0
+    right[40:120, 120 - d_fg:220 - d_fg] = 20.0
+    noisy = lambda a: np.clip(a + rng.normal(0, sigma, a.shape), 0, 255).astype(np.uint8)  # noqa: E731
+    return noisy(left), noisy(right), (slice(50, 110), slice(125, 215))
+
+
+def test_texture_snr_tells_plain_paint_from_texture(rng):
+    left, _, core = _plain_panel_pair(rng, sigma=1.5)
+    assert abs(image_noise_sigma(left) - 1.5) < 0.5
+    snr = texture_snr(left)
+    assert np.median(snr[core]) < 1.5            # noise only
+    assert np.median(snr[50:110, 20:100]) > 10   # the background's texture
+
+
+def test_plain_panel_is_not_put_behind_itself(rng):
+    # SGBM's paths carry the background's disparity into a plain panel: without the texture test a
+    # fifth of it lands behind (farther than) the panel; with it, no pixel of the panel does.
+    left, right, core = _plain_panel_pair(rng)
+    d_fg = 16
+    off = disparity_map(left, right, preset("balanced", num_disparities_px=32, fill_max_px=32))
+    on = disparity_map(left, right, preset("balanced", num_disparities_px=32, fill_max_px=32, min_texture_snr=2.0,
+                                           fill_occlusion_slack_px=3.0))
+    assert np.mean(off[core] < d_fg - 1) > 0.1
+    assert np.mean(on[core] < d_fg - 1) < 0.01
+    textured = (slice(50, 110), slice(40, 100))
+    assert np.isfinite(on[textured]).mean() > 0.98 and abs(np.nanmedian(on[textured]) - 6) < 0.3
 
 
 def test_depth_from_disparity_and_range():

@@ -1,0 +1,43 @@
+"""A plain black roof: SGBM carries the background's disparity into it unless pixels without texture get no depth.
+
+Issue 12's "depth on weakly textured panels". The scene is draw 0 of tuning seed 2035 (48 frames): a 1.23 m
+model box truck in plain black paint, whose roof's texture lies under the pixel noise. SGBM's paths enter the
+plain roof from the background behind it and carry that disparity in; the hole fill then widens it. Both put
+parts of the roof behind the truck, and the TSDF carves the roof there (a depth too far carves every voxel in
+front of it), so the densest roof level left is the cab's. ``ReconstructConfig.min_texture_snr`` drops the
+pixels whose texture the noise drowns and ``fill_occlusion_slack_px`` fills a gap with the background only as
+wide as an occlusion can be. Both are opt-in (they drop weakly textured panels too: Table 2 0.66 -> 0.97 %).
+Measured when written: H -17.2 % without them, -2.4 % with them (and no same-surface interpolation); the
+height's sigma (1.5 mm) does not cover that -2.4 % (3.6 sigma): one reason they stay opt-in.
+"""
+
+import json
+from dataclasses import replace
+
+import pytest
+
+from stereo_recon.app.pipeline import RunConfig, run_video
+from stereo_recon.reconstruct_config import ReconstructConfig
+from stereo_recon.synthetic.envelope import draw_spec, ensure_rendered
+
+pytestmark = pytest.mark.slow
+
+
+def test_plain_black_roof_is_not_carved(tmp_path):
+    scene = tmp_path / "draw"
+    spec = draw_spec(2035, 0, max_frames=48)
+    assert spec.truck.body_paint == "black" and spec.panel.texture_class == "plain"
+    ensure_rendered(spec, scene)
+    video = next(scene.glob("video.*"))
+    calib = next(scene.glob("SN*.conf"))
+    truth = json.loads((scene / "truth.json").read_text())
+
+    before = run_video(video, calib, tmp_path / "before", RunConfig(quiet=True))
+    dark = replace(ReconstructConfig(), min_texture_snr=2.0, fill_occlusion_slack_px=3.0,
+                   disparity_overrides={"fill_same_surface_px": None})
+    after = run_video(video, calib, tmp_path / "after", RunConfig(quiet=True, reconstruct=dark))
+    low = before["height_m"] / truth["height_m"] - 1
+    err = after["height_m"] / truth["height_m"] - 1
+    # The failure mode is there by default, and gone with the two rules (and no same-surface interpolation).
+    assert low < -0.08, before
+    assert abs(err) < 0.05 and abs(err) < abs(low) / 2, (err, low)
