@@ -124,6 +124,17 @@ class DimensionConfig:
                                        # share of the top: a box's fattened walls and flaring roof rim do
                                        # (0.52-0.89 on 20 tuning clouds), a flatbed's deck and cab beside its
                                        # narrower load do not (0.12-0.50 on 10 of 11)
+    roof_stretch_min_share: float | None = 0.25  # a roof over part of the length, higher than the roof level
+                                       # found over all the points: where the truck's upper surface along its
+                                       # length (``top_profile`` across the length) lies more than
+                                       # roof_stretch_sigmas height bandwidths above that level over at least
+                                       # this share of the length in one stretch from one of its ends (a
+                                       # cargo body higher than its cab), the level is read from that
+                                       # stretch's points alone (rule ``roof_peak_highest_stretch``). Why: a plain
+                                       # roof fused from weak depth is a smear, not a peak, and a lower cab
+                                       # roof is the highest crisp level of
+                                       # all the points. None: off. Measured: README, issue 12's fifteenth round
+    roof_stretch_sigmas: float = 3.0
     flank_slices: int = 20             # height slices of the width's profile (of the truck's top, 99.5 % quantile)
     flank_window: int = 4              # slices on each side of a profile maximum the quadratic is fitted to
     flank_min_height: float = 0.15     # slices below this share of the top are left out (wheels, ground remnants)
@@ -504,6 +515,63 @@ def _plateau_width(out: dict, rules: dict, ends: dict, widths: np.ndarray, blur:
     rules["width"] = "wall_plateau"
 
 
+def _highest_stretch_roof(a, z, ends, level: float, rule: str, support: float, hz: float, step: float, normals, out: dict,
+                          b, cfg: DimensionConfig) -> tuple[float, str, float]:
+    """The roof level of the highest stretches of the length, when they lie above ``level`` (see
+    ``DimensionConfig.roof_stretch_min_share``); else level, rule and support unchanged.
+
+    a, b, z: the points' positions on the length and width axes and heights (m); ends: the rules' ends (m);
+    level: the roof level of all the points (m); hz, step: the height kernel's bandwidth and bin (m);
+    normals: the points' unit normals (None: no upward-facing refinement); out: when the rule applies,
+    ``height_roof_m`` becomes the stretch's level (the uncertainty spans it to the top 0.5 %) and
+    ``height_roof_all_m`` keeps the level of all the points.
+    """
+    u, prof = top_profile(b, a, z, ends["width"], ends["length"])
+    ok = np.isfinite(prof)
+    if ok.sum() < 4:
+        return level, rule, support
+    hi = ok & (prof > level + cfg.roof_stretch_sigmas * hz)
+    # A cargo body higher than the cab is a step: its stretch runs from one end of the truck. A roof fused
+    # with a dome in its middle (or a middle crate) rises inside the length and keeps the level.
+    idx = np.flatnonzero(ok)
+    runs = []
+    for end in (idx[0], idx[-1]):
+        step_ = 1 if end == idx[0] else -1
+        k, n_run = int(end), 0
+        while 0 <= k < len(prof) and (hi[k] or not ok[k]):
+            n_run += int(hi[k])
+            k += step_
+        runs.append((n_run, int(end), k))
+    n_run, start, stop = max(runs)
+    if n_run < cfg.roof_stretch_min_share * ok.sum():
+        return level, rule, support
+    hi = np.zeros_like(hi)
+    lo_i, hi_i = (start, stop) if stop > start else (stop + 1, start + 1)
+    hi[lo_i:hi_i] = True
+    (l0, l1) = ends["length"]
+    nb = len(prof)
+    ia = np.floor((a - l0) / max(l1 - l0, 1e-12) * nb).astype(np.int64)
+    sel = (ia >= 0) & (ia < nb)
+    sel[sel] = hi[ia[sel]]
+    zs = z[sel]
+    if len(zs) < cfg.roof_min_points:
+        return level, rule, support
+    lo, n_bins = _height_bins(zs, hz, step)
+    counts = linear_binning(zs, lo, step, n_bins)
+    up_counts = None
+    if normals is not None and cfg.roof_facing_cos is not None:
+        up = np.abs(normals[sel, 2]) >= cfg.roof_facing_cos
+        if up.sum() >= 200:
+            up_counts = linear_binning(zs[up], lo, step, n_bins)
+    new, new_rule, _, _, _, new_support = _height_rule(zs, hz, step, cfg, counts=counts, lo=lo, up_counts=up_counts)
+    if new_rule != "roof_peak" or new <= level + 2 * hz:
+        return level, rule, support
+    out["height_roof_all_m"] = float(level)
+    out["height_roof_m"] = float(new)
+    # The support is the share of all the truck's points (the roof gate's scale), not of the stretches'.
+    return float(new), "roof_peak_highest_stretch", float(new_support * len(zs) / max(len(z), 1))
+
+
 def _length_rule(counts, grid, h, step, cfg: DimensionConfig):
     dens = smooth_counts(counts, step, h)
     pk = local_maxima(dens, cfg.peak_min_rel * 0.5)
@@ -705,7 +773,7 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         sys2 = 2 * (res / 2) ** 2 + n_extreme * (2 * noise_m) ** 2 + (bw[name] / 4) ** 2
         unc[name] = float(np.sqrt(boots[name] ** 2 + sys2))
     unc["height"] = float(np.sqrt(boots["height"] ** 2 + (res / 2) ** 2
-                                  + (noise_m if rules["height"] != "roof_peak" else 0.0) ** 2))
+                                  + (noise_m if rules["height"] not in ("roof_peak", "roof_peak_highest_stretch") else 0.0) ** 2))
     warnings = []
     if roof_support < 0.10:
         # A barely seen roof: its peak sits on the smoothed top edge of the walls, which pulls
@@ -820,6 +888,9 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         out["rounded_top_drop"] = drop if np.isfinite(drop) else None   # None: a part of the top not seen
     if config.rounded_top_min_drop is not None and hrule == "roof_peak" and np.isfinite(drop) and drop >= config.rounded_top_min_drop:
         height, hrule = top, "rounded_top_99.5"
+    if config.roof_stretch_min_share is not None and hrule == "roof_peak":
+        height, hrule, roof_support = _highest_stretch_roof(a, z, ends, height, hrule, roof_support, hz, stepz,
+                                                            normals, out, b, config)
     # Vertical walls under a top seen flat: their plateau is the width (a rounded top has rounded flanks,
     # whose plateau lies inside their widest line).
     if (plateau_widths is not None and rules["width"] != "curved_flank_vertex"

@@ -95,6 +95,9 @@ class MeasureConfig:
                                                 # a median height of at least this share of the top
     rounded_top_min_drop: float | None = 0.07   # a rounded top's height from its top 0.5 % of points (None: off; see
                                                 # measure.dimensions.DimensionConfig)
+    roof_stretch_min_share: float | None = 0.25  # the roof level of the stretches of the length whose upper surface lies
+    roof_stretch_sigmas: float = 3.0            # this many height bandwidths above the level of all the points, when
+                                                # they make this share of the length (None: off; see DimensionConfig)
     bootstrap: int = 30
     seed: int = 0
 

@@ -336,3 +336,50 @@ def test_wall_plateau_reads_the_widest_stretch_above_the_chassis():
     sparse = np.full(20, np.nan)
     sparse[::3] = 2.5                                                  # 3 or 4 of every 9 slices
     assert wall_plateau(sparse, 9, 3) is None
+
+
+def _roof_pieces(rng, L, W, H, z_roof):
+    """Walls, ends and a roof whose height z_roof(x) follows the length (m), 2 mm noise."""
+    x = rng.uniform(-L / 2, L / 2, 40_000)
+    roof = np.column_stack([x, rng.uniform(-W / 2, W / 2, len(x)), z_roof(x)])
+    pts = [roof]
+    for s in (-1, 1):
+        xw = rng.uniform(-L / 2, L / 2, 20_000)
+        pts.append(np.column_stack([xw, np.full(len(xw), s * W / 2), rng.uniform(0.1 * H, 1.0, len(xw)) * z_roof(xw)]))
+    xyz = np.vstack(pts)
+    xyz[:, 2] += rng.normal(0.0, 0.002, len(xyz))
+    return xyz
+
+
+def test_a_cargo_body_higher_than_the_level_found_gives_the_height_and_a_dome_does_not():
+    """The roof level of all the points can be a lower cab's crisp roof when the cargo body's plain roof is
+    fused as a smear (tuning draw 2036/38, a black semi-trailer: H -23.7 %). When the upper surface along
+    the length lies above that level over a stretch from one end (the body), the level is read from the
+    stretch's points; a dome in the middle of a roof (as the external renders' roofs came out) is no
+    such stretch and keeps the level."""
+    from measure.dimensions import _height_bins, _highest_stretch_roof
+
+    rng = np.random.default_rng(31)
+    L, W, H = 2.0, 0.38, 0.40
+    hz = 0.002
+    cfg = DimensionConfig()
+
+    def stretch(xyz, level):
+        out: dict = {}
+        lo, _ = _height_bins(xyz[:, 2], hz, hz / 4)
+        ends = {"length": (-L / 2, L / 2), "width": (-W / 2, W / 2)}
+        got = _highest_stretch_roof(xyz[:, 0], xyz[:, 2], ends, level, "roof_peak", 0.1, hz, hz / 4, None, out,
+                                    xyz[:, 1], cfg)
+        return got, out
+
+    body = _roof_pieces(rng, L, W, H, lambda x: np.where(x < 0.5, H, 0.8 * H))   # cab: the front quarter, 0.8 H
+    (level, rule, support), out = stretch(body, 0.8 * H)
+    assert rule == "roof_peak_highest_stretch" and abs(level - H) < 0.005, (rule, level)
+    assert out["height_roof_all_m"] == 0.8 * H and 0 < support < 1
+
+    dome = _roof_pieces(rng, L, W, H, lambda x: 0.8 * H + 0.1 * H * np.clip(1 - (x / 0.5) ** 2, 0, None))
+    (level, rule, _), out = stretch(dome, 0.8 * H)
+    assert rule == "roof_peak" and level == 0.8 * H and not out, (rule, level)
+    off = measure_dimensions(body, resolution_m=0.004, noise_m=hz, config=replace(cfg, roof_stretch_min_share=None))
+    on = measure_dimensions(body, resolution_m=0.004, noise_m=hz)
+    assert abs(on["height_m"] - H) < 0.005 and abs(off["height_m"] - H) < 0.005  # a crisp body roof: found either way
