@@ -7,6 +7,9 @@ import argparse
 # --refine-poses -> ReconstructConfig.refine_poses_sfm
 REFINE_POSES_CHOICES = {"auto": None, "on": True, "off": False}
 PRESETS = ("fast", "balanced", "quality", "wls")
+# --plain-paint -> ReconstructConfig fields (stereo_recon.disparity: the texture test and the occlusion-wide fill,
+# and no same-surface interpolation, which would bridge a dropped roof to the ground behind it)
+PLAIN_PAINT = {"min_texture_snr": 2.0, "fill_occlusion_slack_px": 3.0, "disparity_overrides": {"fill_same_surface_px": None}}
 
 
 def add_pose_options(p: argparse.ArgumentParser) -> None:
@@ -35,11 +38,15 @@ def _far_scene_baselines(text: str):
 
 
 def add_frame_options(p: argparse.ArgumentParser) -> None:
-    """--frames, --step, --preset, --mesh (run, batch, reconstruct)."""
+    """--frames, --step, --preset, --mesh, --plain-paint (run, batch, reconstruct)."""
     p.add_argument("--frames", default=None, metavar="A:B", help="half-open frame range of the video to use, e.g. 100:400 (default: all)")
     p.add_argument("--step", type=int, default=1, help="use every N-th frame (default 1)")
     p.add_argument("--preset", default="balanced", choices=PRESETS, help="disparity (SGBM) preset (default balanced)")
     p.add_argument("--mesh", action="store_true", help="also write mesh.ply (marching cubes of the TSDF volume)")
+    p.add_argument("--plain-paint", action="store_true",
+                   help="a plain dark body: no depth where the image noise drowns the texture, holes filled only as "
+                        "wide as an occlusion (keeps a black roof from being carved; costs depth on weakly textured "
+                        "panels, so off by default)")
 
 
 def reconstruct_overrides(args) -> dict:
@@ -64,6 +71,8 @@ def reconstruct_overrides(args) -> dict:
         overrides["disparity_preset"] = args.preset
     if getattr(args, "mesh", False):
         overrides["mesh"] = True
+    if getattr(args, "plain_paint", False):
+        overrides.update(PLAIN_PAINT)
     return overrides
 
 

@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import pytest
 
+from stereo_recon.app.options import PLAIN_PAINT
 from stereo_recon.app.pipeline import RunConfig, run_video
 from stereo_recon.reconstruct_config import ReconstructConfig
 from stereo_recon.synthetic.envelope import draw_spec, ensure_rendered
@@ -33,8 +34,7 @@ def test_plain_black_roof_is_not_carved(tmp_path):
     truth = json.loads((scene / "truth.json").read_text())
 
     before = run_video(video, calib, tmp_path / "before", RunConfig(quiet=True))
-    dark = replace(ReconstructConfig(), min_texture_snr=2.0, fill_occlusion_slack_px=3.0,
-                   disparity_overrides={"fill_same_surface_px": None})
+    dark = replace(ReconstructConfig(), **PLAIN_PAINT)   # what --plain-paint sets
     after = run_video(video, calib, tmp_path / "after", RunConfig(quiet=True, reconstruct=dark))
     low = before["height_m"] / truth["height_m"] - 1
     err = after["height_m"] / truth["height_m"] - 1

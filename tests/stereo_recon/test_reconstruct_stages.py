@@ -125,6 +125,24 @@ def test_far_scene_threshold_is_a_command_line_option(capsys):
         assert "a positive number of rig baselines" in capsys.readouterr().err
 
 
+def test_plain_paint_option_sets_the_disparity_rules():
+    """--plain-paint turns on the texture test and the occlusion-wide fill (off by default) and reaches SGBM's config."""
+    import argparse
+
+    from stereo_recon.app.options import add_frame_options, reconstruct_overrides
+    from stereo_recon.disparity import preset
+
+    p = argparse.ArgumentParser(prog="run")
+    add_frame_options(p)
+    assert not ({"min_texture_snr", "fill_occlusion_slack_px"} & set(reconstruct_overrides(p.parse_args([]))))
+    assert ReconstructConfig().min_texture_snr is None and ReconstructConfig().fill_occlusion_slack_px is None
+    rc = ReconstructConfig(**reconstruct_overrides(p.parse_args(["--plain-paint"])))
+    assert rc.min_texture_snr == 2.0 and rc.fill_occlusion_slack_px == 3.0
+    d = preset(rc.disparity_preset, min_texture_snr=rc.min_texture_snr, fill_occlusion_slack_px=rc.fill_occlusion_slack_px,
+               **rc.disparity_overrides)
+    assert d.min_texture_snr == 2.0 and d.fill_occlusion_slack_px == 3.0 and d.fill_same_surface_px is None
+
+
 def test_view_selector_choice_by_back_end():
     sel, by_pose = view_selector(ReconstructConfig(), "vo")
     assert by_pose and sel.config is None and sel.rotation_deg == 18.0
