@@ -556,13 +556,7 @@ def _highest_stretch_roof(a, z, ends, level: float, rule: str, support: float, h
     zs = z[sel]
     if len(zs) < cfg.roof_min_points:
         return level, rule, support
-    lo, n_bins = _height_bins(zs, hz, step)
-    counts = linear_binning(zs, lo, step, n_bins)
-    up_counts = None
-    if normals is not None and cfg.roof_facing_cos is not None:
-        up = np.abs(normals[sel, 2]) >= cfg.roof_facing_cos
-        if up.sum() >= 200:
-            up_counts = linear_binning(zs[up], lo, step, n_bins)
+    lo, counts, up_counts = _height_counts(zs, None if normals is None else normals[sel, 2], hz, step, cfg)
     new, new_rule, _, _, _, new_support = _height_rule(zs, hz, step, cfg, counts=counts, lo=lo, up_counts=up_counts)
     if new_rule != "roof_peak" or new <= level + 2 * hz:
         return level, rule, support
@@ -627,6 +621,19 @@ def _height_rule(z: np.ndarray, h: float, step: float, cfg: DimensionConfig, cou
             return level, "roof_peak", counts, grid, dens, float(mass / max(n, 1))
     q = grid[min(int(np.searchsorted(np.cumsum(counts), (1 - 0.002) * n)), len(grid) - 1)]
     return float(q), "high_quantile_99.8", counts, grid, dens, 0.0
+
+
+def _height_counts(z: np.ndarray, normal_z: np.ndarray | None, h: float, step: float, cfg: DimensionConfig):
+    """The heights z (m) binned as the height rule bins them: (lower edge m, counts, counts of the upward-facing
+    points, |normal_z| >= cfg.roof_facing_cos; None when that is off, normal_z is None or under 200 face up)."""
+    lo, n_bins = _height_bins(z, h, step)
+    counts = linear_binning(z, lo, step, n_bins)
+    up_counts = None
+    if normal_z is not None and cfg.roof_facing_cos is not None:
+        up = np.abs(normal_z) >= cfg.roof_facing_cos
+        if up.sum() >= 200:
+            up_counts = linear_binning(z[up], lo, step, n_bins)
+    return lo, counts, up_counts
 
 
 def _height_bins(z: np.ndarray, h: float, step: float) -> tuple[float, int]:
@@ -869,13 +876,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
-    lo_z, n_z = _height_bins(z, hz, stepz)
-    hc = linear_binning(z, lo_z, stepz, n_z)
-    up_counts = None
-    if config.roof_facing_cos is not None:
-        up = np.abs(normals[:, 2]) >= config.roof_facing_cos
-        if up.sum() >= 200:
-            up_counts = linear_binning(z[up], lo_z, stepz, n_z)
+    lo_z, hc, up_counts = _height_counts(z, None if normals is None else normals[:, 2], hz, stepz, config)
     height, hrule, _, hgrid, hdens, roof_support = _height_rule(z, hz, stepz, config, counts=hc, lo=lo_z, up_counts=up_counts)
     reps = [_height_rule(z, hz, stepz, config, counts=rc, lo=lo_z, up_counts=ru)[0]
             for rc, ru in _bootstrap_counts(hc, up_counts, config.bootstrap, rng)]
