@@ -242,19 +242,18 @@ def fill_holes_background(disp_px: np.ndarray, max_gap_px: int | None = None,
     d_left = np.where(lc >= 0, flat[row0 + np.maximum(lc, 0)], np.inf)
     d_right = np.where(rc < w, flat[row0 + np.minimum(rc, w - 1)], np.inf)
     fill = np.minimum(d_left, d_right)
+    with np.errstate(invalid="ignore"):  # inf - inf where a run touches the border
+        step = d_right - d_left
+    one = np.zeros(len(holes), bool)
     if same_surface_px is not None:
         gap = (rc - lc).astype(np.float32)
         t = ((holes % w) - lc).astype(np.float32) / np.maximum(gap, 1.0)
-        with np.errstate(invalid="ignore"):  # inf - inf where a run touches the border
-            step = d_right - d_left
+        with np.errstate(invalid="ignore"):
             one = np.isfinite(step) & (np.abs(step) <= same_surface_px + 0.1 * gap)
-            fill = np.where(one, d_left + t * np.where(one, step, 0.0), fill)
+        fill = np.where(one, d_left + t * np.where(one, step, 0.0), fill)
     if occlusion_slack_px is not None:
         with np.errstate(invalid="ignore"):
-            step_abs = np.abs(d_right - d_left)
-            occl = ~np.isfinite(step_abs) | ((rc - lc - 1) <= step_abs + occlusion_slack_px)
-        if same_surface_px is not None:
-            occl |= one
+            occl = one | ~np.isfinite(step) | ((rc - lc - 1) <= np.abs(step) + occlusion_slack_px)
         fill = np.where(occl, fill, np.nan)
     fill[~np.isfinite(fill)] = np.nan
     out = d.copy()

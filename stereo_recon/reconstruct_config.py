@@ -38,17 +38,6 @@ class ReconstructConfig:
     max_num_disparities: int = 256
     # Gaps wider than this (px) stay holes: background filling is right for occlusions, not for wide untextured areas.
     fill_max_px: int | None = 32
-    # Opt-in (None: off), for plain dark paint. fill_occlusion_slack_px: a gap is filled with its farther end
-    # only when it is no wider than the disparity step across it plus this slack (px), an occlusion's width.
-    # min_texture_snr: pixels whose texture the image noise drowns (x-gradient RMS over 9 px below this x the
-    # noise's own) get no depth. Why: on a plain black roof SGBM's paths carry in the background's disparity
-    # and the fill widens it; that depth lies behind the roof and carves it in the TSDF (issue 12, fifteenth
-    # round: tuning draw 2035/0 at 48 frames H -17.2 % -> -2.4 % with both at 3 px / 2.0 and
-    # disparity_overrides {"fill_same_surface_px": null}). Off by default because the same threshold drops
-    # weakly textured panels too: Table 2 end to end 0.66 -> 0.97 % with both on (2.0, same-surface fill
-    # kept), and 1.2-1.5 leave the black roof carved (H -15.7 / -6.5 %).
-    fill_occlusion_slack_px: float | None = None
-    min_texture_snr: float | None = None
     # Keyframes (fused, and the images given to SfM) by image motion, for sfm (vo and gt: by pose, below);
     # None = every processed frame is fused, whatever the back-end.
     # 6 % of the width between keyframes: on the 120-frame synthetic HD720 orbit, 23 keyframes gave the

@@ -53,10 +53,8 @@ def open_input(source_path, rig, config: ReconstructConfig, clock, calib_path=No
 
     depth_max_m = resolved_depth_max_m(c, f_px, B)
     d_min, d_num = disparity_range_for_depth(f_px, B, c.depth_min_m, depth_max_m, c.max_num_disparities)
-    dcfg: DisparityConfig = preset(c.disparity_preset, **{
-        "min_disparity_px": d_min, "num_disparities_px": d_num, "fill_max_px": c.fill_max_px,
-        "fill_occlusion_slack_px": c.fill_occlusion_slack_px, "min_texture_snr": c.min_texture_snr,
-        **c.disparity_overrides})
+    dcfg: DisparityConfig = preset(c.disparity_preset, min_disparity_px=d_min, num_disparities_px=d_num,
+                                   fill_max_px=c.fill_max_px, **c.disparity_overrides)
     fcfg = replace(c.fusion, depth_min_m=max(c.fusion.depth_min_m, c.depth_min_m),
                    depth_max_m=min(c.fusion.depth_max_m, depth_max_m),
                    voxel_m=c.voxel_m if c.voxel_m is not None else c.fusion.voxel_m)

@@ -134,12 +134,11 @@ def test_plain_paint_option_sets_the_disparity_rules():
 
     p = argparse.ArgumentParser(prog="run")
     add_frame_options(p)
-    assert not ({"min_texture_snr", "fill_occlusion_slack_px"} & set(reconstruct_overrides(p.parse_args([]))))
-    assert ReconstructConfig().min_texture_snr is None and ReconstructConfig().fill_occlusion_slack_px is None
+    assert "disparity_overrides" not in reconstruct_overrides(p.parse_args([]))
+    default = preset(ReconstructConfig().disparity_preset, **ReconstructConfig().disparity_overrides)
+    assert default.min_texture_snr is None and default.fill_occlusion_slack_px is None and default.fill_same_surface_px == 1.0
     rc = ReconstructConfig(**reconstruct_overrides(p.parse_args(["--plain-paint"])))
-    assert rc.min_texture_snr == 2.0 and rc.fill_occlusion_slack_px == 3.0
-    d = preset(rc.disparity_preset, min_texture_snr=rc.min_texture_snr, fill_occlusion_slack_px=rc.fill_occlusion_slack_px,
-               **rc.disparity_overrides)
+    d = preset(rc.disparity_preset, **rc.disparity_overrides)
     assert d.min_texture_snr == 2.0 and d.fill_occlusion_slack_px == 3.0 and d.fill_same_surface_px is None
 
 
