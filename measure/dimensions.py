@@ -96,6 +96,14 @@ class DimensionConfig:
                                        # wider than the peaks' reading, which the uncertainty then spans
                                        # (``curved_flank_width``). None: off. Measured on 276 re-measured
                                        # tuning clouds: README, issue 12's twelfth round
+    crest_flank_min_drop: float | None = 0.005  # under a rounded top (rule ``rounded_top_99.5``) the flank's
+                                       # widest height is read as ``curved_flank_min_drop`` reads it but with
+                                       # only this fall on both sides of the vertex (``curved_flank_width``,
+                                       # strict=False): the crest already shows the body is rounded, and the
+                                       # strict tests, made to keep a flat wall's ripple from passing for a
+                                       # rounded flank, rejected most tanks' noisy profiles, whose peaks over
+                                       # all heights read the narrower flanks, cab and wheels (-3 to -9 %).
+                                       # None: off. Measured: README, issue 12's sixteenth round
     rounded_top_min_drop: float | None = 0.07  # a rounded top (a tank's crest) has no roof level: the densest
                                        # level found lies on its flank or on a lower cab roof. The top
                                        # surface's profile across the width (``top_profile``) then falls from
@@ -352,7 +360,8 @@ def _concave_vertex(z: np.ndarray, w: np.ndarray) -> tuple[float, float, float] 
     return float(zv + z.mean()), float(c[0] + c[1] * zv + c[2] * zv * zv), s
 
 
-def curved_flank_width(zs: np.ndarray, widths: np.ndarray, window: int, min_drop: float, z_min: float) -> float | None:
+def curved_flank_width(zs: np.ndarray, widths: np.ndarray, window: int, min_drop: float, z_min: float,
+                       strict: bool = True) -> float | None:
     """The widest part of a rounded body from its width profile (``width_profile``), or None.
 
     Around each slice with ``window`` valid slices on either side, a concave quadratic is fitted to those
@@ -362,7 +371,9 @@ def curved_flank_width(zs: np.ndarray, widths: np.ndarray, window: int, min_drop
     both sides, gradually, as a rounded flank's does, and neither a flat wall's noise, a step (a cab or
     wheels narrower than the body) nor a rim flaring at the top or bottom of the walls (one side only, or
     next to the roof) qualifies. The highest vertex, at most the window's widest slice, is returned.
-    zs, widths: slice heights and widths (m); z_min: slices below this height (m) are left out.
+    zs, widths: slice heights and widths (m); z_min: slices below this height (m) are left out; strict: False
+    keeps only the fall by min_drop on both sides (no scatter and no slices-against-beyond test), for a body
+    already known to be rounded (its crest).
     """
     ok = np.isfinite(widths) & (zs >= z_min)
     idx = np.arange(len(widths))
@@ -390,8 +401,8 @@ def curved_flank_width(zs: np.ndarray, widths: np.ndarray, window: int, min_drop
             continue
         peak = float(np.median(widths[near]))
         drop = min(top - np.median(below), top - np.median(above))
-        falls = drop >= max(min_drop * top, 3.0 * scatter)
-        peaks = min(peak - np.median(below_out), peak - np.median(above_out)) >= min_drop * peak
+        falls = drop >= max(min_drop * top, 3.0 * scatter if strict else 0.0)
+        peaks = not strict or min(peak - np.median(below_out), peak - np.median(above_out)) >= min_drop * peak
         top = min(top, float(widths[sel].max()))
         if falls and peaks and (best is None or top > best):
             best = top
@@ -443,16 +454,18 @@ def rounded_top_drop(u: np.ndarray, prof: np.ndarray, top: float) -> float:
 
 
 def _curved_flank(out: dict, rules: dict, ends: dict, zs: np.ndarray, widths: np.ndarray, top: float,
-                  cfg: DimensionConfig) -> None:
+                  cfg: DimensionConfig, min_drop: float | None = None, strict: bool = True) -> None:
     """Replace the width in out (and its rule and edges) by a rounded flank's widest part when that is wider.
 
     zs, widths: the width's height profile (``width_profile``); top: the truck's top (m, the heights' 99.5 %
     quantile), which the profile's slices divide. The peaks'
     reading becomes the other reading the uncertainty spans (``width_walls_m``): what is left of the flank's
-    inward pull and a flat wall's noise read as curvature are not told apart by the data.
+    inward pull and a flat wall's noise read as curvature are not told apart by the data. min_drop, strict:
+    ``curved_flank_width``'s (None: ``cfg.curved_flank_min_drop``).
     """
     w0, w1 = ends["width"]
-    v = curved_flank_width(zs, widths, cfg.flank_window, cfg.curved_flank_min_drop, cfg.flank_min_height * top)
+    v = curved_flank_width(zs, widths, cfg.flank_window, cfg.curved_flank_min_drop if min_drop is None else min_drop,
+                           cfg.flank_min_height * top, strict=strict)
     if v is None or v <= out["width_m"]:
         return
     grow = 0.5 * (v - out["width_m"])
@@ -845,6 +858,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     side = None
     normals = None
     plateau_widths = None   # the width's height profile, kept for the walls' plateau (None: not read)
+    flank_profile = None    # (slice heights m, widths m) of the width's height profile (None: not read)
     wall_blur = 0.0
     top = float(np.quantile(z, 0.995))   # the top 0.5 %: the height's second reading, the width profile's range
     if config.wall_facing_cos is not None or config.roof_facing_cos is not None:
@@ -866,9 +880,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
             out["rear_end"] = d["rear_end"]
         else:
             out["width_walls_m"] = d["other_reading"]
-            if side is not None and (config.curved_flank_min_drop is not None or config.wall_plateau_slices is not None):
+            if side is not None and (config.curved_flank_min_drop is not None or config.wall_plateau_slices is not None
+                                     or config.crest_flank_min_drop is not None):
                 w0, w1 = ends["width"]
                 zs, widths = width_profile(b, z, side, 0.5 * (w0 + w1), d["bandwidth"], top, config.flank_slices)
+                flank_profile = (zs, widths)
                 if config.curved_flank_min_drop is not None:
                     _curved_flank(out, rules, ends, zs, widths, top, config)
                 if config.wall_plateau_slices is not None:
@@ -889,6 +905,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         out["rounded_top_drop"] = drop if np.isfinite(drop) else None   # None: a part of the top not seen
     if config.rounded_top_min_drop is not None and hrule == "roof_peak" and np.isfinite(drop) and drop >= config.rounded_top_min_drop:
         height, hrule = top, "rounded_top_99.5"
+        # A crest shows the body is rounded, so its flanks are: their widest height is read without the tests
+        # that keep a flat wall's ripple from passing for a rounded flank.
+        if (config.crest_flank_min_drop is not None and flank_profile is not None
+                and rules["width"] != "curved_flank_vertex"):
+            _curved_flank(out, rules, ends, *flank_profile, top, config, min_drop=config.crest_flank_min_drop, strict=False)
     if config.roof_stretch_min_share is not None and hrule == "roof_peak":
         height, hrule, roof_support = _highest_stretch_roof(a, z, ends, height, hrule, roof_support, hz, stepz,
                                                             normals, out, b, config)

@@ -93,6 +93,8 @@ class MeasureConfig:
     wall_plateau_max_top_drop: float = 0.07     # ... under a top seen flat (rounded_top_drop below this)
     wall_plateau_min_outside_height: float = 0.5  # ... and, where the peaks read wider, with the points outside it at
                                                 # a median height of at least this share of the top
+    crest_flank_min_drop: float | None = 0.005  # under a rounded top, its flanks' widest height with only this fall
+                                                # on both sides (None: off; see measure.dimensions.DimensionConfig)
     rounded_top_min_drop: float | None = 0.07   # a rounded top's height from its top 0.5 % of points (None: off; see
                                                 # measure.dimensions.DimensionConfig)
     roof_stretch_min_share: float | None = 0.25  # the roof level of the stretches of the length whose upper surface lies
