@@ -857,9 +857,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     dens_out, bw, rules, ends, boots, bw_rules = {}, {}, {}, {}, {}, {}
     side = None
     normals = None
-    plateau_widths = None   # the width's height profile, kept for the walls' plateau (None: not read)
     flank_profile = None    # (slice heights m, widths m) of the width's height profile (None: not read)
-    wall_blur = 0.0
     top = float(np.quantile(z, 0.995))   # the top 0.5 %: the height's second reading, the width profile's range
     if config.wall_facing_cos is not None or config.roof_facing_cos is not None:
         normals = point_normals(xyz, config.normal_neighbours)
@@ -887,8 +885,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
                 flank_profile = (zs, widths)
                 if config.curved_flank_min_drop is not None:
                     _curved_flank(out, rules, ends, zs, widths, top, config)
-                if config.wall_plateau_slices is not None:
-                    plateau_widths, wall_blur = widths, float(np.hypot(noise_m, d["bandwidth"]))
+    plateau = config.wall_plateau_slices is not None and flank_profile is not None   # the walls read from that profile
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
     stepz = hz / 4
@@ -900,7 +897,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     out["height_roof_m"] = float(height)
     out["height_top_m"] = top
     drop = float("nan")
-    if (config.rounded_top_min_drop is not None and hrule == "roof_peak") or plateau_widths is not None:
+    if (config.rounded_top_min_drop is not None and hrule == "roof_peak") or plateau:
         drop = rounded_top_drop(*top_profile(a, b, z, ends["length"], ends["width"]), top)
         out["rounded_top_drop"] = drop if np.isfinite(drop) else None   # None: a part of the top not seen
     if config.rounded_top_min_drop is not None and hrule == "roof_peak" and np.isfinite(drop) and drop >= config.rounded_top_min_drop:
@@ -915,9 +912,9 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
                                                             normals, out, b, config)
     # Vertical walls under a top seen flat: their plateau is the width (a rounded top has rounded flanks,
     # whose plateau lies inside their widest line).
-    if (plateau_widths is not None and rules["width"] != "curved_flank_vertex"
+    if (plateau and rules["width"] != "curved_flank_vertex"
             and np.isfinite(drop) and drop < config.wall_plateau_max_top_drop):
-        _plateau_width(out, rules, ends, plateau_widths, wall_blur, b, z, top, config)
+        _plateau_width(out, rules, ends, flank_profile[1], float(np.hypot(noise_m, bw["width"])), b, z, top, config)
     # The roof's own noise is only needed by the opt-in top reading (a per-cell pass over the truck's points).
     if config.top_above_roof_sigmas is not None and hrule == "roof_peak":
         roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)
