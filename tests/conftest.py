@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,23 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _free_module_scratch(request, tmp_path_factory):
+    """Removes what this module's tests and fixtures wrote under pytest's base temp once the module is done.
+
+    Why: kept to the session's end, a full run's clouds, videos and work files add up to ~1.3 GB, more than a CI
+    machine's disk has had free (ENOSPC in the last module's reconstructions). Kept when one of the module's
+    tests failed, for the post-mortem. Session-scoped fixtures must not write under base temp (none do).
+    """
+    base = tmp_path_factory.getbasetemp()
+    before = set(base.iterdir())
+    failed_before = request.session.testsfailed
+    yield
+    if request.session.testsfailed == failed_before:
+        for path in set(base.iterdir()) - before:
+            shutil.rmtree(path, ignore_errors=True)
 
 
 @pytest.fixture

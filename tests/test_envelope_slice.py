@@ -8,6 +8,8 @@ reported +-2 sigma for at least 7 of the 9 dimensions (90 % coverage leaves a 9-
 at <= 6 covered with 5 % probability); every full-scale verdict right (``bench.verdict_matches``).
 """
 
+import shutil
+
 import pytest
 
 from stereo_recon.app.bench import DIMS, bench_random_one, envelope_row
@@ -49,6 +51,9 @@ def slice_rows(tmp_path_factory):
         except Exception as err:  # a failure is a result here: the row records its reason
             result = {"name": spec.name, "ok": False, "error": f"{type(err).__name__}: {err}"}
         rows[i] = envelope_row(result, spec)
+        # Each draw's video and run (~100-400 MB) go once its row holds what the tests read: the disk stays small.
+        for done in (root / "draws", root / "runs" / str(i)):
+            shutil.rmtree(done, ignore_errors=True)
     return rows
 
 
