@@ -17,6 +17,7 @@ from stereo_recon import __version__
 from stereo_recon.app.cli_help import finish_help
 from stereo_recon.core.errors import StereoReconError
 from stereo_recon.core.paths import LOG
+from stereo_recon.core.validate import disk_full_message
 from stereo_recon.core.progress import NativeOutputToLog, stream_is_tty, abandon_open, quiet_native_libraries, quiet_open3d
 
 # Modules that contribute subcommands, in the order they appear in --help.
@@ -197,6 +198,17 @@ def _run_command(args, argv: list[str] | None) -> int:
         abandon_open()
         print(f"stereo-recon {args.command}: interrupted", file=sys.stderr)
         code = 130
+    except OSError as err:
+        full = disk_full_message(err, folder if folder is not None else Path.cwd())
+        if full is None:
+            abandon_open()
+            logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")
+            raise
+        refused = True
+        abandon_open()
+        logging.getLogger("stereo_recon.app.cli").debug("error", exc_info=True)
+        print(f"stereo-recon {args.command}: error: {full}", file=sys.stderr)
+        code = 1
     except BaseException:
         abandon_open()
         logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")

@@ -21,6 +21,7 @@ from stereo_recon.core.atomic import staged_output_dir, write_json_atomic
 from stereo_recon.core.manifest import sha256_file, to_jsonable
 from stereo_recon.core.paths import CLOUD, POSES, RECONSTRUCTION_FILES, RUN_JSON, RUN_OUTPUTS, RunPaths
 from stereo_recon.core.progress import ProgressConfig, StageProgress
+from stereo_recon.core.validate import disk_full_message
 from stereo_recon.app.uncertainty import depth_sigma_m
 from stereo_recon.reconstruct import ReconstructConfig
 
@@ -279,7 +280,7 @@ def _measure_stage(paths: RunPaths, final: RunPaths, config: RunConfig, checks: 
                                             + "; ".join(f"{c['name']}: {c['detail']}" for c in failed) + ")")
         return {}, {"status": "failed", "error": str(failure)}, failure
     except Exception as err:
-        raise StageError("measure", f"{type(err).__name__}: {err}") from err
+        raise StageError("measure", disk_full_message(err, final.root.parent) or f"{type(err).__name__}: {err}") from err
 
 
 def _reconstruct_stage(source, rig, out: Path, rcfg, calib, progress) -> dict:
@@ -294,8 +295,8 @@ def _reconstruct_stage(source, rig, out: Path, rcfg, calib, progress) -> dict:
                     progress=progress)
     except StereoReconError:
         raise
-    except Exception as err:  # a bug or library failure inside the stage: name the stage
-        raise StageError("reconstruct", f"{type(err).__name__}: {err}") from err
+    except Exception as err:  # a full disk, a bug or a library failure inside the stage: name the stage
+        raise StageError("reconstruct", disk_full_message(err, out.parent) or f"{type(err).__name__}: {err}") from err
     finally:
         progress.close()
     return {"status": "done", "time_s": time.perf_counter() - t}

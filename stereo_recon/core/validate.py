@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import errno
 import math
 import os
+import re
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -36,6 +39,33 @@ def _nearest_existing(p: Path) -> Path:
     while not os.path.lexists(p) and p != p.parent:
         p = p.parent
     return p
+
+
+# Below this much free space a failed write without an errno is put down to a full disk.
+_LOW_DISK_BYTES = 64 * 2**20
+# numpy's short write ("921600 requested and 413664 written") carries no errno; on a disk it means no space.
+_SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")
+
+
+def disk_full_message(err: BaseException, folder) -> str | None:
+    """One line saying that the disk of ``folder`` ran out of space, when ``err`` is a write that failed for that.
+
+    err: the exception caught; folder: where the command was writing (its nearest existing ancestor is the
+    one measured). None for anything else: not an OSError, another errno, or no errno on a disk with room.
+    """
+    if not isinstance(err, OSError):
+        return None
+    try:
+        free = shutil.disk_usage(_nearest_existing(Path(folder))).free
+    except OSError:
+        free = None
+    full = err.errno in (errno.ENOSPC, errno.EDQUOT) or (
+        err.errno is None and (_SHORT_WRITE.search(str(err)) is not None
+                               or (free is not None and free < _LOW_DISK_BYTES)))
+    if not full:
+        return None
+    now = "" if free is None else f" ({free / 2**20:.0f} MB free now)"
+    return f"{folder}: its disk ran out of space{now}; free some space or write the output elsewhere (--out)"
 
 
 def _probe_write(folder: Path, what: str) -> None:

@@ -263,6 +263,32 @@ def test_static_camera_refused_with_cause(tmp_path, capsys, videos):
     no_temp_left(tmp_path)
 
 
+@pytest.mark.parametrize("failure", [OSError("921600 requested and 413664 written"),   # numpy's short write
+                                     OSError(28, "No space left on device")])
+def test_disk_running_out_mid_run_is_one_line_naming_the_folder(tmp_path, capsys, monkeypatch, failure):
+    # The disk fills while the views' depth is written: one line that says so and names where, exit 2, and
+    # nothing left behind (it used to read "reconstruct: OSError: 921600 requested and 413664 written").
+    def full(*args, **kwargs):
+        raise failure
+
+    monkeypatch.setattr(np, "save", full)
+    out = tmp_path / "out"
+    rc = main(["-q", "run", str(SAMPLE_VIDEO), "--calib", str(SAMPLE_CONF), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert f"{tmp_path}: its disk ran out of space (" in err and "--out" in err, err
+    assert not out.exists()
+    no_temp_left(tmp_path)
+
+
+def test_other_write_errors_are_not_called_a_full_disk(tmp_path):
+    from stereo_recon.core.validate import disk_full_message
+
+    assert disk_full_message(PermissionError(13, "Permission denied"), tmp_path) is None
+    assert disk_full_message(ValueError("921600 requested and 413664 written"), tmp_path) is None
+    assert "ran out of space" in disk_full_message(OSError(28, "No space left on device"), tmp_path / "new" / "out")
+
+
 # ---- transactions --------------------------------------------------------------------------------
 
 def test_sigkill_leaves_temp_that_the_next_run_removes(tmp_path, capsys):
