@@ -57,6 +57,7 @@ def remeasure(run: Path, scene: Path, overrides: dict | None = None) -> dict:
              if expected in ("over-limit", "within-limits") else None)
     return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "failing_checks": failing,
             "rules": res.get("rules", {}), "rounded_top_drop": res.get("rounded_top_drop"),
+            "body_brightness": res.get("body_brightness"),
             "width_walls_m": res.get("width_walls_m"), "verdict": res["verdict"]["overall"], "verdict_right": right}
 
 

@@ -18,6 +18,15 @@ def read_cloud(path: str | os.PathLike, min_points: int = 100) -> np.ndarray:
     Raises InputError naming the file for: missing, not a file, unsupported suffix, unreadable
     or empty, non-finite coordinates (NaN/inf), fewer than ``min_points`` points.
     """
+    return read_cloud_colors(path, min_points)[0]
+
+
+def read_cloud_colors(path: str | os.PathLike, min_points: int = 100) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points (N, 3) float64 and their colours (N, 3) float64 RGB in [0, 1], or None when the file has none.
+
+    As ``read_cloud`` (same checks and errors); ``.pts`` files and text files without colours give None.
+    """
+    colors = None
     p = Path(path)
     if not p.exists():
         raise InputError(f"{p}: no such file")
@@ -42,6 +51,8 @@ def read_cloud(path: str | os.PathLike, min_points: int = 100) -> np.ndarray:
         except Exception as err:  # Open3D raises RuntimeError on corrupt files
             raise InputError(f"{p}: cannot read point cloud ({' '.join(str(err).split())})") from None
         pts = np.asarray(pc.points, dtype=np.float64)
+        if pc.has_colors() and len(pc.colors) == len(pts):
+            colors = np.asarray(pc.colors, dtype=np.float64)
         if len(pts) == 0 and suffix in (".xyz", ".xyzn", ".xyzrgb"):
             pts = _read_text_xyz(p)   # Open3D skips files with NaN tokens silently
     if len(pts) == 0:
@@ -51,7 +62,7 @@ def read_cloud(path: str | os.PathLike, min_points: int = 100) -> np.ndarray:
         raise InputError(f"{p}: {int(bad.sum())} of {len(pts)} points have NaN or infinite coordinates")
     if len(pts) < min_points:
         raise InputError(f"{p}: only {len(pts)} points, at least {min_points} are needed to measure a truck")
-    return pts
+    return pts, colors
 
 
 _PLY_TYPE_BYTES = {"char": 1, "int8": 1, "uchar": 1, "uint8": 1, "short": 2, "int16": 2, "ushort": 2, "uint16": 2,

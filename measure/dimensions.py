@@ -132,6 +132,15 @@ class DimensionConfig:
                                        # share of the top: a box's fattened walls and flaring roof rim do
                                        # (0.52-0.89 on 20 tuning clouds), a flatbed's deck and cab beside its
                                        # narrower load do not (0.12-0.50 on 10 of 11)
+    dark_body_max_brightness: float | None = 0.2  # a body whose median luma is below this share of the ground's
+                                       # (``body_brightness``) has its height from its top 0.5 % of points
+                                       # (``dark_top_99.5``) instead of a roof level. Why: a dark roof's depth
+                                       # sags (no texture over the noise: SGBM carries the background's
+                                       # disparity in and fusion carves the roof), always downwards, while its
+                                       # rim against the lighter ground is matched. On tuning seeds 2034-2041
+                                       # (312 clouds) every other paint read >= 0.21; black bodies 0.04 up, half
+                                       # of them under 0.17 (those above: mostly flatbeds, whose load is not
+                                       # black). None: off. Measured: README, issue 12's seventeenth round
     roof_stretch_min_share: float | None = 0.25  # a roof over part of the length, higher than the roof level
                                        # found over all the points: where the truck's upper surface along its
                                        # length (``top_profile`` across the length) lies more than
@@ -817,8 +826,9 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
     if above > 3 * hz:  # a flat roof's own noise puts its top 0.5 % 2-2.6 noise sigmas above its level
         unc["height"] = float(np.hypot(unc["height"], above))
         if above > 0.01 * values["height"]:
-            if rules["height"] in ("top_quantile_99.5", "rounded_top_99.5"):
-                what = "a rounded top's points (a crest, no roof level)" if rules["height"] == "rounded_top_99.5" else "the truck's points"
+            if rules["height"] in ("top_quantile_99.5", "rounded_top_99.5", "dark_top_99.5"):
+                what = {"rounded_top_99.5": "a rounded top's points (a crest, no roof level)",
+                        "dark_top_99.5": "a dark body's points (a plain dark roof's depth sags)"}.get(rules["height"], "the truck's points")
                 warnings.append(f"height {values['height']:.3g} m from the top 0.5 % of {what}, {above:.3g} m "
                                 f"above the densest roof level at {height_roof:.3g} m (the uncertainty covers both)")
             else:
@@ -836,10 +846,12 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
     return unc, warnings
 
 
-def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.0, config: DimensionConfig = DimensionConfig(), rng=0) -> dict:
+def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.0, config: DimensionConfig = DimensionConfig(), rng=0,
+                       body_brightness: float | None = None) -> dict:
     """Length, width, height of a truck from its points in the ground frame.
 
-    xyz: (N, 3) metres, z = height above the fitted ground. resolution_m: point spacing.
+    xyz: (N, 3) metres, z = height above the fitted ground. resolution_m: point spacing. body_brightness: the
+    truck's median luma over the ground's (``measure.pipeline.body_brightness``), None when unknown.
     noise_m: reconstruction noise (e.g. the ground fit's RMS), used in the uncertainties.
     Returns a dict with ``length_m``, ``width_m``, ``height_m``, ``uncertainty_m``, ``rules``,
     ``bandwidths_m``, the PCA axes and everything the plots need (densities, peaks, rectangle).
@@ -910,6 +922,9 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     if config.roof_stretch_min_share is not None and hrule == "roof_peak":
         height, hrule, roof_support = _highest_stretch_roof(a, z, ends, height, hrule, roof_support, hz, stepz,
                                                             normals, out, b, config)
+    if (config.dark_body_max_brightness is not None and body_brightness is not None
+            and body_brightness < config.dark_body_max_brightness and hrule in ("roof_peak", "roof_peak_highest_stretch")):
+        height, hrule = top, "dark_top_99.5"
     # Vertical walls under a top seen flat: their plateau is the width (a rounded top has rounded flanks,
     # whose plateau lies inside their widest line).
     if (plateau and rules["width"] != "curved_flank_vertex"
@@ -921,6 +936,7 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         if out["height_top_m"] - height > config.top_above_roof_sigmas * roof_sigma:
             height, hrule = out["height_top_m"], "top_quantile_99.5"
     out["height_m"] = float(height)
+    out["body_brightness"] = body_brightness
     rules["height"] = hrule
     bw["height"] = hz
     bw_rules["height"] = "max(ground_rms, half_spacing)"

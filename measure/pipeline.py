@@ -97,6 +97,9 @@ class MeasureConfig:
                                                 # on both sides (None: off; see measure.dimensions.DimensionConfig)
     rounded_top_min_drop: float | None = 0.07   # a rounded top's height from its top 0.5 % of points (None: off; see
                                                 # measure.dimensions.DimensionConfig)
+    dark_body_max_brightness: float | None = 0.2   # a body this much darker than the ground (median luma ratio): its
+                                                # height from its top 0.5 % of points (None: off; see
+                                                # measure.dimensions.DimensionConfig)
     roof_stretch_min_share: float | None = 0.25  # the roof level of the stretches of the length whose upper surface lies
     roof_stretch_sigmas: float = 3.0            # this many height bandwidths above the level of all the points, when
                                                 # they make this share of the length (None: off; see DimensionConfig)
@@ -193,6 +196,7 @@ class Measurement:
             "height_top_m": self.details.get("height_top_m"),
             "height_roof_m": self.details.get("height_roof_m"),
             "rounded_top_drop": self.details.get("rounded_top_drop"),
+            "body_brightness": self.details.get("body_brightness"),
             "bootstrap_std_m": self.details.get("bootstrap_std_m"),
         })
 
@@ -225,11 +229,26 @@ def _layer_sigma(heights: np.ndarray, xi_m: float) -> float:
     return float(1.4826 * np.median(np.abs(near - np.median(near))))
 
 
+def body_brightness(truck_rgb: np.ndarray, ground_rgb: np.ndarray) -> float | None:
+    """The truck's median luma over the ground's (Rec. 601 weights): a black body reads well under 1.
+
+    truck_rgb, ground_rgb: (N, 3) RGB in [0, 1] of the truck's and the ground layer's points. None when either
+    is empty or the ground is black.
+    """
+    w = np.array([0.299, 0.587, 0.114])
+    if len(truck_rgb) == 0 or len(ground_rgb) == 0:
+        return None
+    ground = float(np.median(ground_rgb @ w))
+    return float(np.median(truck_rgb @ w)) / ground if ground > 1e-6 else None
+
+
 def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig(), up_hint: np.ndarray | None = None,
-                   centre_hint: np.ndarray | None = None, rng=0, source: str = "cloud") -> Measurement:
+                   centre_hint: np.ndarray | None = None, rng=0, source: str = "cloud",
+                   colors_rgb: np.ndarray | None = None) -> Measurement:
     """Measure the truck in a point cloud.
 
-    points_xyz: (N, 3) metres, any frame. up_hint: approximate ground normal pointing up
+    points_xyz: (N, 3) metres, any frame. colors_rgb: (N, 3) RGB in [0, 1] or None (the truck's brightness
+    against the ground's then stays unknown, see ``body_brightness``). up_hint: approximate ground normal pointing up
     (input frame), e.g. from the camera trajectory; None => estimated from the cloud.
     centre_hint: a point near the truck (input frame), e.g. the orbit centre; used to pick
     the truck among several candidates. rng: seed for subsampling and bootstrap.
@@ -279,7 +298,10 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     t = time.perf_counter()
     # The dimension rules' parameters are the MeasureConfig fields of the same names.
     dcfg = DimensionConfig(**{f.name: getattr(cfg, f.name) for f in fields(DimensionConfig) if hasattr(cfg, f.name)})
-    dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng)
+    brightness = None
+    if colors_rgb is not None and len(colors_rgb) == len(p):
+        brightness = body_brightness(colors_rgb[g.keep][in_truck], colors_rgb[~g.keep])
+    dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng, body_brightness=brightness)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
 
@@ -518,7 +540,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     live once a run's folder is committed). A cloud that cannot be a vehicle (units, scale, ground
     only) is refused (``measure.quality.check_plausible``).
     """
-    from measure.cloud_io import read_cloud
+    from measure.cloud_io import read_cloud_colors
     from measure.limits import load_regulation
     from measure.quality import UNITS_M
 
@@ -530,7 +552,8 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
         raise ConfigError(f"--units {units!r}: expected one of {', '.join(UNITS_M)}")
     reg = load_regulation(regulation)   # fail early on a bad table or class, before any work
     reg.limits(vehicle_class)
-    pts = read_cloud(cloud_path, min_points=max(100, config.min_cluster_points)) * UNITS_M[units]
+    pts, colors = read_cloud_colors(cloud_path, min_points=max(100, config.min_cluster_points))
+    pts = pts * UNITS_M[units]
     t_read = time.perf_counter() - t0
     recorded = Path(record_path) if record_path is not None else cloud_path.resolve()
     name = str(record_path) if record_path is not None else str(cloud_path)
@@ -538,7 +561,7 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
     # A user's --centre is a point near the truck, judged by check_centre (within its length); an orbit's
     # centre lies on or next to the footprint of the truck circled.
     hint_cfg = dataclasses.replace(config, max_hint_distance_rel=None) if centre_strict else config
-    m = measure_points(pts, hint_cfg, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=name)
+    m = measure_points(pts, hint_cfg, up_hint=up_hint, centre_hint=centre, rng=config.seed, source=name, colors_rgb=colors)
     gates = _quality_gates(m, scale, units, name, centre if centre_strict else None, checks, camera_centres)
     values = {"length": m.length_m, "width": m.width_m, "height": m.height_m}
     uncertainty, parts = combined_uncertainty(values, m.uncertainty_m, reconstruction_rel_sigma, reconstruction_abs_m)
