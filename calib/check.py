@@ -68,10 +68,14 @@ def match_features(left: np.ndarray, right: np.ndarray, config: CheckConfig = Ch
     pl = np.array([kl[m.queryIdx].pt for m in good], dtype=np.float64).reshape(-1, 2)
     pr = np.array([kr[m.trainIdx].pt for m in good], dtype=np.float64).reshape(-1, 2)
     if len(pl) >= 8:
-        F, mask = cv2.findFundamentalMat(pl, pr, cv2.USAC_MAGSAC, config.ransac_px, 0.999, 10000)
-        if F is not None and mask is not None:
-            keep = mask.reshape(-1).astype(bool)
-            pl, pr = pl[keep], pr[keep]
+        try:
+            F, mask = cv2.findFundamentalMat(pl, pr, cv2.USAC_MAGSAC, config.ransac_px, 0.999, 10000)
+        except cv2.error:   # MAGSAC asserts (!model.empty()) when no model fits: seen on envelope draw 2046/4
+            F, mask = None, None
+        if F is None or mask is None:   # no epipolar geometry: right matches cannot be told from wrong ones
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        keep = mask.reshape(-1).astype(bool)
+        pl, pr = pl[keep], pr[keep]
     return pl, pr
 
 

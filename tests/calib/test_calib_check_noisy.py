@@ -45,3 +45,25 @@ def test_another_cameras_calibration_still_does_not_fit():
     assert out["verdict"] == "calibration_mismatch", (out["raw"], out["rectified"])
     exact = verdict_from_matches(*_matches(rig, np.random.default_rng(2)), rig)
     assert exact["verdict"] == "ok" and exact["rectified"]["median_dy_px"] < 0.05
+
+
+def test_pairs_without_an_epipolar_model_give_no_matches_and_no_crash(monkeypatch):
+    # OpenCV's MAGSAC asserts (!model.empty()) when no fundamental matrix fits a pair's matches (a plain model
+    # flatbed, envelope draw 2046/4: the run stopped with that OpenCV error). Such a pair gives no matches, and
+    # the check of the recording is inconclusive instead of crashing.
+    import cv2
+
+    from calib.check import check_pairs, match_features
+
+    rng = np.random.default_rng(0)
+    img = cv2.resize(rng.integers(0, 256, (90, 160), dtype=np.uint8), (1280, 720), interpolation=cv2.INTER_CUBIC)
+    pl, _ = match_features(img, np.roll(img, -20, axis=1))
+    assert len(pl) >= 8            # a textured pair matches ...
+
+    def no_model(*args, **kwargs):
+        raise cv2.error("OpenCV(5.0.0) usac/estimator.cpp:418: error: (-215:Assertion failed) !model.empty()")
+
+    monkeypatch.setattr(cv2, "findFundamentalMat", no_model)
+    pl, pr = match_features(img, np.roll(img, -20, axis=1))
+    assert pl.shape == (0, 2) and pr.shape == (0, 2)     # ... but not without a model
+    assert check_pairs([("frame 0", img, np.roll(img, -20, axis=1))], _rig())["verdict"] == "inconclusive"
