@@ -204,11 +204,11 @@ def _run_command(args, argv: list[str] | None) -> int:
             abandon_open()
             logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")
             raise
-        refused = True
+        refused = True   # a full disk: the command could not do its job (exit 2), as for a failed stage
         abandon_open()
         logging.getLogger("stereo_recon.app.cli").debug("error", exc_info=True)
         print(f"stereo-recon {args.command}: error: {full}", file=sys.stderr)
-        code = 1
+        code = 2
     except BaseException:
         abandon_open()
         logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")

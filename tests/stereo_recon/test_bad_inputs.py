@@ -418,3 +418,27 @@ def test_a_scale_the_run_did_not_correct_fails_its_gate():
     assert trajectory_scale_check({"frames_read": 80}) is None   # no motion stereo: no such check
     names = [ch["name"] for ch in checks_from_reconstruction({"source": {}, "counts": {"frames_read": 80, **refused}})]
     assert names == ["frames_decoded", "trajectory_scale"]
+
+
+def test_a_full_disk_outside_the_stages_is_one_line_too(tmp_path, capsys):
+    # A command whose own code meets ENOSPC outside a stage's wrapper still ends in one line naming the folder
+    # and exit 2, and leaves no output folder; any other OSError keeps its traceback (a bug to report).
+    import argparse
+    import errno
+
+    from stereo_recon.app.cli import _run_command
+
+    def full(args):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def broken(args):
+        raise OSError(errno.EIO, "Input/output error")
+
+    out = tmp_path / "out"
+    args = argparse.Namespace(command="run", func=full, verbose=0, quiet=True, out=str(out))
+    assert _run_command(args, ["run", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{out}: its disk ran out of space" in err, err
+    assert not out.exists()
+    with pytest.raises(OSError, match="Input/output"):
+        _run_command(argparse.Namespace(command="run", func=broken, verbose=0, quiet=True, out=str(out)), ["run"])
