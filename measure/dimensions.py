@@ -808,7 +808,7 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         # A barely seen roof: its peak sits on the smoothed top edge of the walls, which pulls
         # it down by up to a few bandwidths; say so and widen the uncertainty accordingly.
         unc["height"] = float(np.hypot(unc["height"], 3 * hz))
-        if rules["height"] != "rounded_top_99.5":   # a crest is no roof: its height is not read at a level
+        if rules["height"] not in ("rounded_top_99.5", "dark_top_99.5"):   # a crest, or a dark body's top: not read at a level
             warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
     for name in ("length", "width"):
         if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder", "curved_flank_vertex",
