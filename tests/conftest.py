@@ -16,7 +16,7 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 def _free_module_scratch(request, tmp_path_factory):
     """Removes what this module's tests and fixtures wrote under pytest's base temp once the module is done.
 
-    Why: kept to the session's end, a full run's clouds, videos and work files add up to ~1.3 GB, more than a CI
+    Why: kept to the session's end, a full run's clouds, videos and work files add up to ~1.5 GB, more than a CI
     machine's disk has had free (ENOSPC in the last module's reconstructions). Kept when one of the module's
     tests failed, for the post-mortem. Session-scoped fixtures must not write under base temp (none do).
     """

@@ -187,28 +187,25 @@ def _run_command(args, argv: list[str] | None) -> int:
         quiet_open3d()
     try:
         code = int(args.func(args) or 0)
-    except StereoReconError as err:
-        refused = True
+    except (StereoReconError, OSError) as err:
+        # A user error, or a disk that ran out of space (the command could not do its job: exit 2, as for a
+        # failed stage): one line. Any other OSError is a bug to report, with its traceback.
+        if isinstance(err, StereoReconError):
+            msg = " ".join(str(err).split())  # one line, always
+        else:
+            msg = disk_full_message(err, folder if folder is not None else Path.cwd())
         abandon_open()
-        msg = " ".join(str(err).split())  # one line, always
+        if msg is None:
+            logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")
+            raise
+        refused = True
         logging.getLogger("stereo_recon.app.cli").debug("error", exc_info=True)
         print(f"stereo-recon {args.command}: error: {msg}", file=sys.stderr)
-        code = err.exit_code
+        code = getattr(err, "exit_code", 2)
     except KeyboardInterrupt:
         abandon_open()
         print(f"stereo-recon {args.command}: interrupted", file=sys.stderr)
         code = 130
-    except OSError as err:
-        full = disk_full_message(err, folder if folder is not None else Path.cwd())
-        if full is None:
-            abandon_open()
-            logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")
-            raise
-        refused = True   # a full disk: the command could not do its job (exit 2), as for a failed stage
-        abandon_open()
-        logging.getLogger("stereo_recon.app.cli").debug("error", exc_info=True)
-        print(f"stereo-recon {args.command}: error: {full}", file=sys.stderr)
-        code = 2
     except BaseException:
         abandon_open()
         logging.getLogger("stereo_recon.app.cli").exception("unexpected failure")
