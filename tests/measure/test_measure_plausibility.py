@@ -342,6 +342,50 @@ def test_end_faces_unseen_but_walls_and_roof_reaching_them_bound_the_length(tmp_
     assert m["verdict"]["dimensions"]["length"]["verdict"] != "undecided"
 
 
+def _without_left_side(roof_reaches_it: bool):
+    """The model truck with no point on its left side walls, wheels and rails, below the roof's level and
+    away from the ends; with roof_reaches_it False also none on the roof within 15 % of the width of that
+    side (only the end faces reach it)."""
+    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, noise_m=0.001), rng=7)
+    L, W, H = truth["length_m"], truth["width_m"], truth["height_m"]
+    rel = pts - truth["truck_centre"]
+    along, across = rel @ truth["heading"], rel @ np.cross(truth["up"], truth["heading"])
+    height = pts @ truth["up"] - truth["ground_offset"]
+    truck = truth["labels"] == 1
+    if roof_reaches_it:
+        drop = truck & (across > 0.44 * W) & (height < 0.97 * H) & (np.abs(along) < 0.45 * L)
+    else:
+        drop = truck & (across > 0.35 * W) & (np.abs(along) < 0.45 * L)
+    return pts[~drop], truth
+
+
+def _measured(tmp_path, pts, name):
+    cloud = write_cloud(tmp_path / f"{name}.ply", pts)
+    assert main(["measure", str(cloud), "--out", str(tmp_path / name), "--no-plots", "--scale", "8"]) == 0
+    m = json.loads((tmp_path / name / "measurement.json").read_text())
+    return m, {c["name"]: c for c in m["data_quality"]["checks"]}
+
+
+def test_side_wall_unseen_but_roof_and_an_end_reaching_it_bound_the_width(tmp_path):
+    """A plain side wall seen obliquely or not at all (one side of a 240 deg arc) while the roof, seen from
+    above to its edge, and the ends are: the width is bounded where they stop (a warning), and read right."""
+    pts, truth = _without_left_side(roof_reaches_it=True)
+    m, checks = _measured(tmp_path, pts, "noleft")
+    assert checks["faces_width"]["status"] == "warn", checks["faces_width"]
+    assert "bounded by the roof and an end reaching it" in checks["faces_width"]["detail"]
+    assert m["data_quality"]["ok"] is True
+    assert abs(m["width_m"] / truth["width_m"] - 1) < 0.01
+    assert m["verdict"]["dimensions"]["width"]["verdict"] != "undecided"
+
+
+def test_side_wall_unseen_and_roof_not_reaching_it_makes_width_undecided(tmp_path):
+    pts, _ = _without_left_side(roof_reaches_it=False)
+    m, checks = _measured(tmp_path, pts, "noleftside")
+    assert checks["faces_width"]["status"] == "fail" and "not seen" in checks["faces_width"]["detail"]
+    assert m["verdict"]["dimensions"]["width"]["verdict"] == "undecided"
+    assert m["verdict"]["overall"] == "undecided"
+
+
 def test_measurement_json_bytes_identical_for_identical_input(clouds, tmp_path):
     for name in ("a", "b"):
         assert main(["measure", str(clouds["m"]), "--out", str(tmp_path / name), "--no-plots"]) == 0

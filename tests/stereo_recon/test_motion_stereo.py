@@ -84,14 +84,17 @@ def test_motion_depth_matches_the_plane(side):
     assert abs(counts["rig_ratio_median"] - 1) < 0.003
 
 
-def test_a_short_step_shows_in_the_rig_ratio():
-    """Odometry reporting the step 2 % short makes the wide depth 2 % short; the rig's depth says so."""
+@pytest.mark.parametrize("short", [0.98, 0.90])
+def test_a_short_step_shows_in_the_rig_ratio(short):
+    """Odometry reporting the step 2 or 10 % short makes the wide depth as short; the rig's depth says so,
+    and the run corrects both (within ``max_rescale``)."""
     img_a, img_b, T_a, T_b, depth_a = _scene([0.6, 0.0, 0.0], -3.0)
     T_short = T_b.copy()
-    T_short[:3, 3] *= 0.98
+    T_short[:3, 3] *= short
     pair = rectify_motion_pair(K, T_a, T_short, (W, H), (W, H))
     _, counts = motion_depth(img_a, img_b, depth_a, pair, preset("balanced"), MotionStereoConfig(), RIG_FB, 20.0)
-    assert counts["rig_ratio_median"] == pytest.approx(1 / 0.98, abs=0.003)
+    assert counts["rig_ratio_median"] == pytest.approx(1 / short, rel=0.003)
+    assert abs(counts["rig_ratio_median"] - 1) <= MotionStereoConfig().max_rescale
 
 
 def test_partner_choice():
