@@ -313,12 +313,16 @@ def _without_end_faces(roof_reaches_ends: bool):
     return pts, truth
 
 
+def _measured(tmp_path, pts, name):
+    cloud = write_cloud(tmp_path / f"{name}.ply", pts)
+    assert main(["measure", str(cloud), "--out", str(tmp_path / name), "--no-plots", "--scale", "8"]) == 0
+    m = json.loads((tmp_path / name / "measurement.json").read_text())
+    return m, {c["name"]: c for c in m["data_quality"]["checks"]}
+
+
 def test_unseen_rear_makes_length_undecided(tmp_path, capsys):
     pts, _ = _without_end_faces(roof_reaches_ends=False)
-    cloud = write_cloud(tmp_path / "norear.ply", pts)
-    assert main(["measure", str(cloud), "--out", str(tmp_path / "out"), "--no-plots", "--scale", "8"]) == 0
-    m = json.loads((tmp_path / "out" / "measurement.json").read_text())
-    checks = {c["name"]: c for c in m["data_quality"]["checks"]}
+    m, checks = _measured(tmp_path, pts, "norear")
     assert checks["faces_length"]["status"] == "fail" and "not seen" in checks["faces_length"]["detail"]
     assert checks["faces_width"]["status"] == "pass"
     assert m["data_quality"]["ok"] is False
@@ -331,10 +335,7 @@ def test_end_faces_unseen_but_walls_and_roof_reaching_them_bound_the_length(tmp_
     """A plain end face is often not reconstructed while the side walls and the roof, seen to their ends, are:
     the length is then bounded by where they stop together (a warning, not a refusal), and measured right."""
     pts, truth = _without_end_faces(roof_reaches_ends=True)
-    cloud = write_cloud(tmp_path / "noends.ply", pts)
-    assert main(["measure", str(cloud), "--out", str(tmp_path / "out"), "--no-plots", "--scale", "8"]) == 0
-    m = json.loads((tmp_path / "out" / "measurement.json").read_text())
-    checks = {c["name"]: c for c in m["data_quality"]["checks"]}
+    m, checks = _measured(tmp_path, pts, "noends")
     assert checks["faces_length"]["status"] == "warn", checks["faces_length"]
     assert "bounded by both side walls and the roof" in checks["faces_length"]["detail"]
     assert m["data_quality"]["ok"] is True
@@ -357,13 +358,6 @@ def _without_left_side(roof_reaches_it: bool):
     else:
         drop = truck & (across > 0.35 * W) & (np.abs(along) < 0.45 * L)
     return pts[~drop], truth
-
-
-def _measured(tmp_path, pts, name):
-    cloud = write_cloud(tmp_path / f"{name}.ply", pts)
-    assert main(["measure", str(cloud), "--out", str(tmp_path / name), "--no-plots", "--scale", "8"]) == 0
-    m = json.loads((tmp_path / name / "measurement.json").read_text())
-    return m, {c["name"]: c for c in m["data_quality"]["checks"]}
 
 
 def test_side_wall_unseen_but_roof_and_an_end_reaching_it_bound_the_width(tmp_path):
