@@ -320,6 +320,17 @@ def _measured(tmp_path, pts, name):
     return m, {c["name"]: c for c in m["data_quality"]["checks"]}
 
 
+def _assert_bounded_by_rims(m, checks, truth, dim: str, phrase: str):
+    """The face gate of dim warns (its face bounded by the rims, saying so in phrase), passes the data
+    quality, and dim reads within 1 % of the truth with a verdict."""
+    check = checks[f"faces_{dim}"]
+    assert check["status"] == "warn", check
+    assert phrase in check["detail"]
+    assert m["data_quality"]["ok"] is True
+    assert abs(m[f"{dim}_m"] / truth[f"{dim}_m"] - 1) < 0.01
+    assert m["verdict"]["dimensions"][dim]["verdict"] != "undecided"
+
+
 def test_unseen_rear_makes_length_undecided(tmp_path, capsys):
     pts, _ = _without_end_faces(roof_reaches_ends=False)
     m, checks = _measured(tmp_path, pts, "norear")
@@ -335,12 +346,8 @@ def test_end_faces_unseen_but_walls_and_roof_reaching_them_bound_the_length(tmp_
     """A plain end face is often not reconstructed while the side walls and the roof, seen to their ends, are:
     the length is then bounded by where they stop together (a warning, not a refusal), and measured right."""
     pts, truth = _without_end_faces(roof_reaches_ends=True)
-    m, checks = _measured(tmp_path, pts, "noends")
-    assert checks["faces_length"]["status"] == "warn", checks["faces_length"]
-    assert "bounded by both side walls and the roof" in checks["faces_length"]["detail"]
-    assert m["data_quality"]["ok"] is True
-    assert abs(m["length_m"] / truth["length_m"] - 1) < 0.01
-    assert m["verdict"]["dimensions"]["length"]["verdict"] != "undecided"
+    _assert_bounded_by_rims(*_measured(tmp_path, pts, "noends"), truth, "length",
+                            "bounded by both side walls and the roof")
 
 
 def _without_left_side(roof_reaches_it: bool):
@@ -364,12 +371,8 @@ def test_side_wall_unseen_but_roof_and_an_end_reaching_it_bound_the_width(tmp_pa
     """A plain side wall seen obliquely or not at all (one side of a 240 deg arc) while the roof, seen from
     above to its edge, and the ends are: the width is bounded where they stop (a warning), and read right."""
     pts, truth = _without_left_side(roof_reaches_it=True)
-    m, checks = _measured(tmp_path, pts, "noleft")
-    assert checks["faces_width"]["status"] == "warn", checks["faces_width"]
-    assert "bounded by the roof and an end reaching it" in checks["faces_width"]["detail"]
-    assert m["data_quality"]["ok"] is True
-    assert abs(m["width_m"] / truth["width_m"] - 1) < 0.01
-    assert m["verdict"]["dimensions"]["width"]["verdict"] != "undecided"
+    _assert_bounded_by_rims(*_measured(tmp_path, pts, "noleft"), truth, "width",
+                            "bounded by the roof and an end reaching it")
 
 
 def test_side_wall_unseen_and_roof_not_reaching_it_makes_width_undecided(tmp_path):
