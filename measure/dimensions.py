@@ -281,7 +281,9 @@ def _outer_peak(grid, dens_facing, e: float, w: float, side: int) -> float:
 
 def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0, side_counts=None, extent_counts=None):
     """Width from the width projection's histogram counts (see the module docstring); side_counts: the
-    same of the sideways-facing points, which place the walls (None: the peaks of all points)."""
+    same of the sideways-facing points, which place the walls (None: the peaks of all points);
+    extent_counts: the same of the points above the ground's skirt, which give the extent the walls must
+    span and bound a shoulder (``width_min_height``; None: all points)."""
     dens = smooth_counts(counts, step, h)
     pos = _wall_peaks(counts, grid, dens, h, step, cfg)
     ext = counts if extent_counts is None else extent_counts
@@ -311,11 +313,12 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
         walls = w1 - w0
         rule = "kde_two_peaks"
         out_hi, out_lo = sh.band_mass(e1 + d, hi), sh.band_mass(lo, e0 - d)
+        bounded = extent_counts is not None   # a shoulder lies within the extent above the skirt
         if out_hi >= cfg.shoulder_min_mass and hi > e1 + d and out_hi > cfg.shoulder_excess * sh.wall_tail(e1, +1):
-            w1 = max(w1, sh.edge(e1, +1, hi if extent_counts is not None else None))
+            w1 = max(w1, sh.edge(e1, +1, hi if bounded else None))
             rule = "kde_peaks_plus_outer_shoulder"
         if out_lo >= cfg.shoulder_min_mass and lo < e0 - d and out_lo > cfg.shoulder_excess * sh.wall_tail(e0, -1):
-            w0 = min(w0, sh.edge(e0, -1, lo if extent_counts is not None else None))
+            w0 = min(w0, sh.edge(e0, -1, lo if bounded else None))
             rule = "kde_peaks_plus_outer_shoulder"
         # With a shoulder the walls' own peak-to-peak distance is the other reading (a thin noise tail
         # outside the walls can pass for a shoulder): returned so that the uncertainty spans both.

@@ -103,9 +103,9 @@ class MeasureConfig:
     roof_stretch_min_share: float | None = 0.25  # the roof level of the stretches of the length whose upper surface lies
     roof_stretch_sigmas: float = 3.0            # this many height bandwidths above the level of all the points, when
                                                 # they make this share of the length (None: off; see DimensionConfig)
-    width_min_height: float | None = 0.15       # the width read from the points at or above this share of the top (the
-                                                # ground's skirt at the truck's foot left out; None: all points, as the
-                                                # paper; see measure.dimensions.DimensionConfig)
+    width_min_height: float | None = 0.15       # the width's extent judged from the points at or above this share of the
+                                                # top (the ground's skirt at the truck's foot left out; None: all points,
+                                                # as the paper; see measure.dimensions.DimensionConfig)
     bootstrap: int = 30
     seed: int = 0
 

@@ -60,7 +60,7 @@ class TruckQualityConfig:
     # A rounded top (height rule ``rounded_top_99.5``, a tank's crest) has no roof level: under
     # min_roof_support its height is still bounded when the crest (points within the roof's band of the
     # top) is seen along the length, in at least min_rim_coverage of 8 cells over 10-90 % of it. On tuning
-    # seeds 2045-2047 two full-scale tankers were refused for a roof although read -0.15 and -0.78 % high.
+    # seeds 2045-2047 two full-scale tankers were refused for a roof whose heights read -0.15 and -0.78 %.
     # False: off.
     crest_rim: bool = True
     # Orbit: azimuth range of the camera centres around the truck (deg) and their spread seen from it.
