@@ -1,7 +1,8 @@
 """Data-quality gates on a measured truck: units and content, faces seen, orbit and camera motion.
 
 A measurement is only as good as what was seen: length is bounded by the front and rear faces (or,
-where an end face was not reconstructed, by both side walls and the roof reaching that end together),
+where an end face was not reconstructed, by both side walls and the roof reaching that end together, or
+a rounded body's shell reaching it on most of its outline),
 width by the two side walls (or, where one was not reconstructed, by the roof and an end face reaching
 it), height by the roof (and the ground). A gate that fails turns the
 verdict into ``undecided`` (``apply_data_quality``); content that cannot be a vehicle at all (a 2 km
@@ -63,6 +64,11 @@ class TruckQualityConfig:
     # seeds 2045-2047 two full-scale tankers were refused for a roof whose heights read -0.15 and -0.78 %.
     # False: off.
     crest_rim: bool = True
+    # A rounded body (a tank: height rule ``rounded_top_99.5`` or width rule ``curved_flank_vertex``) whose
+    # end face is under min_face_coverage and whose walls and roof edge cannot fill the end's rims (it has
+    # neither) still bounds the length when its shell's outline reaches the end: at least min_rim_coverage of
+    # 8 sectors of the cross-section (``_outline_rims``). False: off.
+    rounded_outline: bool = True
     # Orbit: azimuth range of the camera centres around the truck (deg) and their spread seen from it.
     min_orbit_arc_deg: float = 180.0
     warn_orbit_arc_deg: float = 300.0
@@ -158,6 +164,27 @@ def _end_rims(a, b, z, end: float, band_end: float, walls: tuple[float, float], 
             _cells_hit(b[near & (np.abs(z - H) <= band_roof)], w0, w1))
 
 
+def _outline_rims(a, b, z, end: float, band_end: float, ends: tuple[float, float], mid: float, H: float, band: float,
+                  n: int = 8, min_hits: int = 3) -> float:
+    """Share of n sectors of the body's cross-section outline that reach an end (m along the length): the
+    sectors split 0-180 deg about (mid, H/2) across the width and height (one side, over the top, the other
+    side); a sector reaches the end where at least min_hits points within band_end of it lie within band
+    (m) of the body's outline there (the 99th percentile radius of its points over the rest of the
+    length, ends l0..l1 in m). A box's outline is its walls and roof, a tank's its rounded shell."""
+    r = np.hypot(b - mid, z - 0.5 * H)
+    k = np.floor(np.degrees(np.arctan2(z - 0.5 * H, b - mid)) / (180.0 / n)).astype(int)
+    up = (k >= 0) & (k < n)
+    near = up & (np.abs(a - end) <= band_end)
+    rest = up & (a > ends[0] + band_end) & (a < ends[1] - band_end)
+    hits = 0
+    for s in range(n):
+        body = r[rest & (k == s)]
+        if len(body) < 20:
+            continue
+        hits += int(np.count_nonzero(r[near & (k == s)] >= np.quantile(body, 0.99) - band) >= min_hits)
+    return hits / n
+
+
 def _side_rims(a, b, z, side: float, band_side: float, ends: tuple[float, float], band_end: float, H: float,
                band_roof: float) -> tuple[float, float, float]:
     """Shares of the rim cells of a side wall (m across the width) holding points: the roof's 8 cells along
@@ -186,6 +213,8 @@ def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[di
         "left": _coverage(a[np.abs(b - w1) <= band_side], z[np.abs(b - w1) <= band_side], (l0, l1), H, c.face_grid),
     }
     out = []
+    rules = getattr(m, "rules", None) or {}
+    rounded = rules.get("height") == "rounded_top_99.5" or rules.get("width") == "curved_flank_vertex"
     for dim, faces in (("length", ("front", "rear")), ("width", ("left", "right"))):
         low = [f for f in faces if cover[f] < c.min_face_coverage]
         txt = ", ".join(f"{f} {100 * cover[f]:.0f}%" for f in faces)
@@ -197,6 +226,14 @@ def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[di
                     low.remove(f)
                     by_rims.append(f"{f} bounded by both side walls and the roof reaching it "
                                    f"({'/'.join(f'{100 * r:.0f}' for r in rims)}% of their rims)")
+                elif c.rounded_outline and rounded:
+                    # A rounded body has no walls or roof edge to fill the rims: its shell's outline reaches the end.
+                    share = _outline_rims(a, b, z, l1 if f == "front" else l0, band_end, (l0, l1), 0.5 * (w0 + w1), H,
+                                          band_side)
+                    if share >= c.min_rim_coverage:
+                        low.remove(f)
+                        by_rims.append(f"{f} bounded by the rounded body's outline reaching it ({100 * share:.0f}% of "
+                                       "its sectors)")
         if dim == "width" and c.side_rims and c.min_rim_coverage is not None:
             for f in list(low):
                 roof_rim, rear_rim, front_rim = _side_rims(a, b, z, w0 if f == "right" else w1, band_side, (l0, l1),
