@@ -83,6 +83,50 @@ def test_centre_hint_picks_the_other_vehicle_and_ambiguity_is_refused():
     assert abs(m.length_m - 2.1) < 0.021
 
 
+def _box_surface(rng, centre, heading, side, up, length, width, z0, z1, spacing):
+    """Points on the top and the four sides of a box standing on the ground (m, world frame)."""
+    pts = []
+    for a in np.arange(-length / 2, length / 2, spacing):
+        for b in np.arange(-width / 2, width / 2, spacing):
+            pts.append(centre + a * heading + b * side + z1 * up)
+        for s in (-1, 1):
+            for z in np.arange(z0, z1, spacing):
+                pts.append(centre + a * heading + s * width / 2 * side + z * up)
+    for s in (-1, 1):
+        for b in np.arange(-width / 2, width / 2, spacing):
+            for z in np.arange(z0, z1, spacing):
+                pts.append(centre + s * length / 2 * heading + b * side + z * up)
+    return np.asarray(pts) + rng.normal(0, spacing / 10, (len(pts), 3))
+
+
+def test_a_part_cut_off_inside_the_trucks_footprint_is_not_a_second_truck():
+    """A fused cloud can hold a separate cluster inside the truck's footprint (on tuning seed 2049 a
+    semi-trailer's 4.4 m part inside its 11.6 m cluster): both cover the centre hint, but vehicles do not
+    overlap seen from above, so the truck is chosen, not refused as two equally plausible trucks."""
+    from dataclasses import replace as dc_replace
+
+    import measure.truck as truck_mod
+
+    shape = TruckShape(2.1, 0.38, 0.38)
+    a, ta = make_truck_scene(shape, SceneSpec(spacing_m=0.01, ground_margin=0.3), rng=16)
+    side = np.cross(ta["up"], ta["heading"])
+    ground_c = ta["truck_centre"] - (ta["truck_centre"] @ ta["up"]) * ta["up"]
+    inner = _box_surface(np.random.default_rng(1), ground_c - 0.2 * ta["heading"], ta["heading"], side, ta["up"], 1.0, 0.16, 0.15, 0.30, 0.01)
+    pts = np.concatenate([a, inner])
+    m = measure_points(pts, centre_hint=ta["truck_centre"])
+    assert m.clusters["selection_rule"] == "largest_covering_centre_hint_with_parts_inside"
+    assert abs(m.length_m / 2.1 - 1) < 0.01 and abs(m.width_m / 0.38 - 1) < 0.01 and abs(m.height_m / 0.38 - 1) < 0.01, \
+        (m.length_m, m.width_m, m.height_m)
+    # Without the rule the same cloud is refused.
+    orig = truck_mod.TruckFilter
+    try:
+        truck_mod.TruckFilter = lambda **kw: dc_replace(orig(**kw), contained_part_share=None)
+        with pytest.raises(StageError, match="both cover the centre hint"):
+            measure_points(pts, centre_hint=ta["truck_centre"])
+    finally:
+        truck_mod.TruckFilter = orig
+
+
 def test_no_truck_like_cluster_names_the_filter():
     rng = np.random.default_rng(0)
     ground = np.c_[rng.random((20000, 2)) * 4, rng.normal(0, 0.001, 20000)]
