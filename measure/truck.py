@@ -9,8 +9,8 @@ Selection rule when several clusters pass:
 1. with a centre hint (e.g. the drone's orbit centre): the cluster whose footprint rectangle is
    nearest to the hint (distance 0 when the hint lies inside it); two clusters both containing
    the hint are ambiguous, unless the smaller ones are parts lying inside the largest one's
-   footprint (one vehicle cut apart: the largest is chosen, its parts then join it). Only clusters of at least ``min_volume_rel`` of the largest cuboid
-   volume compete: a fragment of the truck or a crate beside it is not the vehicle the drone
+   footprint (one vehicle cut apart: the largest is chosen, its parts then join it). Only clusters
+   of at least ``min_volume_rel`` of the largest cuboid volume compete: a fragment of the truck or a crate beside it is not the vehicle the drone
    circled, however near the hint it lies. When the truck chosen (its parts merged, below) lies
    further from the hint than a share of its own length (:func:`check_hint_distance`), no truck is
    at the hint (refused): the vehicle the drone circled was not reconstructed as one cluster, and
