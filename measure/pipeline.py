@@ -70,6 +70,9 @@ class MeasureConfig:
     max_height_to_width: float = 4.0
     ambiguity_ratio: float = 0.8             # runner-up volume >= this x the best => refuse to guess
     min_volume_rel: float = 0.1              # with a centre hint, clusters below this x the largest volume do not compete
+    contained_part_share: float | None = 0.5  # two clusters covering the hint are one truck cut apart when the smaller
+    contained_part_max_volume_rel: float = 0.5  # lies this share inside the larger's footprint with under this x its
+                                             # volume (None: always ambiguous; see measure.truck.TruckFilter)
     max_hint_distance_rel: float | None = 0.15  # with an orbit's centre as the hint, the chosen cluster's footprint lies
                                              # within this x its length of it, else no truck is at the hint (refused;
                                              # None: off). A user's --centre is judged by quality.check_centre instead
@@ -458,6 +461,7 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
         min_length_to_width=cfg.min_length_to_width, max_length_to_width=cfg.max_length_to_width,
         min_height_to_width=cfg.min_height_to_width, max_height_to_width=cfg.max_height_to_width,
         ambiguity_ratio=cfg.ambiguity_ratio, min_volume_rel=cfg.min_volume_rel,
+        contained_part_share=cfg.contained_part_share, contained_part_max_volume_rel=cfg.contained_part_max_volume_rel,
     )
     chosen, cstats = select_truck(xyz_g, labels, filt, centre_xy, source=source)
     if cfg.merge_gap_res > 0:

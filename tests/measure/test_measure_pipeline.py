@@ -103,10 +103,6 @@ def test_a_part_cut_off_inside_the_trucks_footprint_is_not_a_second_truck():
     """A fused cloud can hold a separate cluster inside the truck's footprint (on tuning seed 2049 a
     semi-trailer's 4.4 m part inside its 11.6 m cluster): both cover the centre hint, but vehicles do not
     overlap seen from above, so the truck is chosen, not refused as two equally plausible trucks."""
-    from dataclasses import replace as dc_replace
-
-    import measure.truck as truck_mod
-
     shape = TruckShape(2.1, 0.38, 0.38)
     a, ta = make_truck_scene(shape, SceneSpec(spacing_m=0.01, ground_margin=0.3), rng=16)
     side = np.cross(ta["up"], ta["heading"])
@@ -118,13 +114,8 @@ def test_a_part_cut_off_inside_the_trucks_footprint_is_not_a_second_truck():
     assert abs(m.length_m / 2.1 - 1) < 0.01 and abs(m.width_m / 0.38 - 1) < 0.01 and abs(m.height_m / 0.38 - 1) < 0.01, \
         (m.length_m, m.width_m, m.height_m)
     # Without the rule the same cloud is refused.
-    orig = truck_mod.TruckFilter
-    try:
-        truck_mod.TruckFilter = lambda **kw: dc_replace(orig(**kw), contained_part_share=None)
-        with pytest.raises(StageError, match="both cover the centre hint"):
-            measure_points(pts, centre_hint=ta["truck_centre"])
-    finally:
-        truck_mod.TruckFilter = orig
+    with pytest.raises(StageError, match="both cover the centre hint"):
+        measure_points(pts, MeasureConfig(contained_part_share=None), centre_hint=ta["truck_centre"])
 
 
 def test_no_truck_like_cluster_names_the_filter():
