@@ -247,3 +247,45 @@ def test_a_rounded_bodys_outline_reaching_an_unseen_end_bounds_the_length():
     assert length_gate(d["rules"], cfg=replace(TruckQualityConfig(), rounded_outline=False))["status"] == "fail"
     assert length_gate({"width": "kde_two_peaks", "length": d["rules"]["length"], "height": "roof_peak"})["status"] == "fail"
     assert length_gate(d["rules"], edges=(l0 - 0.15 * L, l1))["status"] == "fail"   # a length past the shell's end
+
+
+def test_a_rounded_bodys_flank_seen_along_the_length_bounds_the_width():
+    """A tank's flank meets the side plane along one line, so a plain flank matched only near that line
+    leaves most of the side face's cells up the height empty (a full-scale tanker of the tuning seeds was
+    refused for its sides though its width read +1.8 %): the line, seen along the length, bounds the width
+    (a warning). Not for a body read as flat-sided, not when the line is seen along a quarter of the
+    length only, and not with the rule turned off."""
+    from types import SimpleNamespace
+
+    from measure.quality import TruckQualityConfig, face_checks
+
+    rng = np.random.default_rng(5)
+    L, W, H = 1.6, 0.26, 0.40
+    xyz = _elliptic_tanker(rng, L=L, W=W, H=H)
+    d = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003)
+    assert d["rules"]["height"] == "rounded_top_99.5", d["rules"]
+    a = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["length"]
+    b = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["width"]
+    l0, l1 = d["edges_m"]["length"]
+    zc = 0.5 * (0.27 * H + H)
+    # As a plain flank is reconstructed: on both sides only patches of a band about the widest line are
+    # matched, one every tenth of the length.
+    patch = ((a - l0) / (0.1 * L)) % 1.0 < 0.4
+    flank = (np.abs(b) > 0.3 * W) & ((np.abs(xyz[:, 2] - zc) > 0.04 * H) | ~patch)
+
+    def width_gate(rules, keep, cfg=TruckQualityConfig()):
+        m = SimpleNamespace(details=d, rules=rules, truck_xyz_ground=xyz[keep],
+                            parameters={"resolved": {"resolution_m": 0.004}},
+                            height_m=d["height_m"], length_m=d["length_m"], width_m=d["width_m"])
+        return next(c for c in face_checks(m, cfg) if c["name"] == "faces_width")
+
+    assert width_gate(d["rules"], np.ones(len(xyz), bool))["status"] == "pass"
+    seen = width_gate(d["rules"], ~flank)
+    assert seen["status"] == "warn" and "rounded body's flank seen along" in seen["detail"], seen
+    off = replace(TruckQualityConfig(), rounded_side_line=False)
+    assert width_gate(d["rules"], ~flank, cfg=off)["status"] == "fail"
+    flat = {"width": "kde_two_peaks", "length": d["rules"]["length"], "height": "roof_peak"}
+    assert width_gate(flat, ~flank)["status"] == "fail"
+    # The line seen along the rear quarter only: not bounded.
+    short = ~flank & ~((np.abs(b) > 0.3 * W) & (a > l0 + 0.3 * (l1 - l0)))
+    assert width_gate(d["rules"], short)["status"] == "fail"
