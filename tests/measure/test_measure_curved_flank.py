@@ -214,38 +214,56 @@ def test_a_rounded_tops_crest_seen_along_the_length_bounds_the_height():
     assert height_gate(xyz[~unseen])["status"] == "fail"
 
 
+def _measured_tanker(seed: int, L: float = 1.6, W: float = 0.26, H: float = 0.40):
+    """An elliptic tanker's points (``_elliptic_tanker``), their measurement read as rounded, and the
+    points' positions along the length and across the width (m) in its axes."""
+    xyz = _elliptic_tanker(np.random.default_rng(seed), L=L, W=W, H=H)
+    d = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003)
+    assert d["rules"]["height"] == "rounded_top_99.5", d["rules"]
+    a = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["length"]
+    b = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["width"]
+    return xyz, d, a, b
+
+
+def _face_gate(name: str, d: dict, points: np.ndarray, rules: dict, cfg=None, details: dict | None = None) -> dict:
+    """The ``faces_<name>`` check of ``measure.quality.face_checks`` on a measurement d whose truck points
+    are ``points`` (ground frame, m), read with ``rules`` (and ``details`` in place of d's)."""
+    from types import SimpleNamespace
+
+    from measure.quality import TruckQualityConfig, face_checks
+
+    m = SimpleNamespace(details=d if details is None else details, rules=rules, truck_xyz_ground=points,
+                        parameters={"resolved": {"resolution_m": 0.004}},
+                        height_m=d["height_m"], length_m=d["length_m"], width_m=d["width_m"])
+    return next(c for c in face_checks(m, cfg or TruckQualityConfig()) if c["name"] == f"faces_{name}")
+
+
+FLAT_SIDED = {"width": "kde_two_peaks", "height": "roof_peak"}
+
+
 def test_a_rounded_bodys_outline_reaching_an_unseen_end_bounds_the_length():
     """A tank's end cap, plain and seen edge-on, is often not reconstructed (two full-scale tankers of the
     tuning seeds were refused for it though read within 0.02 and 1.7 %), and a tank has no side walls or
     roof edge to fill the end's rims: its shell, reaching the end on most of its outline, bounds the length
     (a warning). Not for a body read as flat-sided, and not where the length runs past the shell's end."""
-    from types import SimpleNamespace
+    from measure.quality import TruckQualityConfig
 
-    from measure.quality import TruckQualityConfig, face_checks
-
-    rng = np.random.default_rng(4)
     L, W, H = 1.6, 0.26, 0.40
-    xyz = _elliptic_tanker(rng, L=L, W=W, H=H)
-    d = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003)
-    assert d["rules"]["height"] == "rounded_top_99.5", d["rules"]
-    a = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["length"]
-    b = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["width"]
+    xyz, d, a, b = _measured_tanker(4, L, W, H)
     l0, l1 = d["edges_m"]["length"]
     # As the drone sees it: no underside of the tank, and its crest not at the top's level by the rear end.
     z_floor = 0.27 * H
     keep = ~(((xyz[:, 2] < z_floor + 0.3 * (H - z_floor)) & (np.abs(b) < 0.45 * W))
              | ((a < l0 + 0.06 * L) & (xyz[:, 2] > H - 0.05)))
 
-    def length_gate(rules, edges=(l0, l1), cfg=TruckQualityConfig()):
-        m = SimpleNamespace(details={**d, "edges_m": {**d["edges_m"], "length": edges}}, rules=rules,
-                            truck_xyz_ground=xyz[keep], parameters={"resolved": {"resolution_m": 0.004}},
-                            height_m=d["height_m"], length_m=d["length_m"], width_m=d["width_m"])
-        return next(c for c in face_checks(m, cfg) if c["name"] == "faces_length")
+    def length_gate(rules, edges=(l0, l1), cfg=None):
+        details = {**d, "edges_m": {**d["edges_m"], "length": edges}}
+        return _face_gate("length", d, xyz[keep], rules, cfg, details)
 
     seen = length_gate(d["rules"])
     assert seen["status"] == "warn" and "rounded body's outline" in seen["detail"], seen
     assert length_gate(d["rules"], cfg=replace(TruckQualityConfig(), rounded_outline=False))["status"] == "fail"
-    assert length_gate({"width": "kde_two_peaks", "length": d["rules"]["length"], "height": "roof_peak"})["status"] == "fail"
+    assert length_gate({**FLAT_SIDED, "length": d["rules"]["length"]})["status"] == "fail"
     assert length_gate(d["rules"], edges=(l0 - 0.15 * L, l1))["status"] == "fail"   # a length past the shell's end
 
 
@@ -255,17 +273,10 @@ def test_a_rounded_bodys_flank_seen_along_the_length_bounds_the_width():
     refused for its sides though its width read +1.8 %): the line, seen along the length, bounds the width
     (a warning). Not for a body read as flat-sided, not when the line is seen along a quarter of the
     length only, and not with the rule turned off."""
-    from types import SimpleNamespace
+    from measure.quality import TruckQualityConfig
 
-    from measure.quality import TruckQualityConfig, face_checks
-
-    rng = np.random.default_rng(5)
     L, W, H = 1.6, 0.26, 0.40
-    xyz = _elliptic_tanker(rng, L=L, W=W, H=H)
-    d = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003)
-    assert d["rules"]["height"] == "rounded_top_99.5", d["rules"]
-    a = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["length"]
-    b = (xyz[:, :2] - d["origin_xy_m"]) @ d["axes_xy"]["width"]
+    xyz, d, a, b = _measured_tanker(5, L, W, H)
     l0, l1 = d["edges_m"]["length"]
     zc = 0.5 * (0.27 * H + H)
     # As a plain flank is reconstructed: on both sides only patches of a band about the widest line are
@@ -273,19 +284,12 @@ def test_a_rounded_bodys_flank_seen_along_the_length_bounds_the_width():
     patch = ((a - l0) / (0.1 * L)) % 1.0 < 0.4
     flank = (np.abs(b) > 0.3 * W) & ((np.abs(xyz[:, 2] - zc) > 0.04 * H) | ~patch)
 
-    def width_gate(rules, keep, cfg=TruckQualityConfig()):
-        m = SimpleNamespace(details=d, rules=rules, truck_xyz_ground=xyz[keep],
-                            parameters={"resolved": {"resolution_m": 0.004}},
-                            height_m=d["height_m"], length_m=d["length_m"], width_m=d["width_m"])
-        return next(c for c in face_checks(m, cfg) if c["name"] == "faces_width")
-
-    assert width_gate(d["rules"], np.ones(len(xyz), bool))["status"] == "pass"
-    seen = width_gate(d["rules"], ~flank)
+    assert _face_gate("width", d, xyz, d["rules"])["status"] == "pass"
+    seen = _face_gate("width", d, xyz[~flank], d["rules"])
     assert seen["status"] == "warn" and "rounded body's flank seen along" in seen["detail"], seen
     off = replace(TruckQualityConfig(), rounded_side_line=False)
-    assert width_gate(d["rules"], ~flank, cfg=off)["status"] == "fail"
-    flat = {"width": "kde_two_peaks", "length": d["rules"]["length"], "height": "roof_peak"}
-    assert width_gate(flat, ~flank)["status"] == "fail"
+    assert _face_gate("width", d, xyz[~flank], d["rules"], off)["status"] == "fail"
+    assert _face_gate("width", d, xyz[~flank], {**FLAT_SIDED, "length": d["rules"]["length"]})["status"] == "fail"
     # The line seen along the rear quarter only: not bounded.
     short = ~flank & ~((np.abs(b) > 0.3 * W) & (a > l0 + 0.3 * (l1 - l0)))
-    assert width_gate(d["rules"], short)["status"] == "fail"
+    assert _face_gate("width", d, xyz[short], d["rules"])["status"] == "fail"
