@@ -243,15 +243,15 @@ def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[di
                                        "its sectors)")
         if dim == "width" and c.side_rims and c.min_rim_coverage is not None:
             for f in list(low):
-                roof_rim, rear_rim, front_rim = _side_rims(a, b, z, w0 if f == "right" else w1, band_side, (l0, l1),
-                                                           band_end, H, band_roof)
+                side = w0 if f == "right" else w1
+                roof_rim, rear_rim, front_rim = _side_rims(a, b, z, side, band_side, (l0, l1), band_end, H, band_roof)
                 if roof_rim >= c.min_rim_coverage and max(rear_rim, front_rim) >= c.min_rim_coverage:
                     low.remove(f)
                     by_rims.append(f"{f} bounded by the roof and an end reaching it ({100 * roof_rim:.0f}% of the "
                                    f"roof's rim, {100 * rear_rim:.0f}/{100 * front_rim:.0f}% of the rear/front's)")
                 elif c.rounded_side_line and rounded:
                     # A rounded flank meets the side plane along one line, not over the face's height.
-                    line = _cells_hit(a[np.abs(b - (w0 if f == "right" else w1)) <= band_side], l0, l1, min_points=3)
+                    line = _cells_hit(a[np.abs(b - side) <= band_side], l0, l1, min_points=3)
                     if line >= c.min_rim_coverage:
                         low.remove(f)
                         by_rims.append(f"{f} bounded by the rounded body's flank seen along {100 * line:.0f}% of the "

@@ -10,11 +10,11 @@ Selection rule when several clusters pass:
    nearest to the hint (distance 0 when the hint lies inside it); two clusters both containing
    the hint are ambiguous, unless the smaller ones are parts lying inside the largest one's
    footprint (one vehicle cut apart: the largest is chosen, its parts then join it). Only clusters
-   of at least ``min_volume_rel`` of the largest cuboid volume compete: a fragment of the truck or a crate beside it is not the vehicle the drone
-   circled, however near the hint it lies. When the truck chosen (its parts merged, below) lies
-   further from the hint than a share of its own length (:func:`check_hint_distance`), no truck is
-   at the hint (refused): the vehicle the drone circled was not reconstructed as one cluster, and
-   another one would be measured instead;
+   of at least ``min_volume_rel`` of the largest cuboid volume compete: a fragment of the truck or a
+   crate beside it is not the vehicle the drone circled, however near the hint it lies. When the
+   truck chosen (its parts merged, below) lies further from the hint than a share of its own length
+   (:func:`check_hint_distance`), no truck is at the hint (refused): the vehicle the drone circled
+   was not reconstructed as one cluster, and another one would be measured instead;
 2. without a hint: the largest cuboid volume; when the runner-up reaches ``ambiguity_ratio`` of
    it, the two are equally plausible and the stage refuses to guess.
 
