@@ -241,10 +241,11 @@ def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[di
                         low.remove(f)
                         by_rims.append(f"{f} bounded by the rounded body's outline reaching it ({100 * share:.0f}% of "
                                        "its sectors)")
-        if dim == "width" and c.side_rims and c.min_rim_coverage is not None:
+        if dim == "width" and c.min_rim_coverage is not None:
             for f in list(low):
                 side = w0 if f == "right" else w1
-                roof_rim, rear_rim, front_rim = _side_rims(a, b, z, side, band_side, (l0, l1), band_end, H, band_roof)
+                roof_rim, rear_rim, front_rim = (_side_rims(a, b, z, side, band_side, (l0, l1), band_end, H, band_roof)
+                                                 if c.side_rims else (0.0, 0.0, 0.0))
                 if roof_rim >= c.min_rim_coverage and max(rear_rim, front_rim) >= c.min_rim_coverage:
                     low.remove(f)
                     by_rims.append(f"{f} bounded by the roof and an end reaching it ({100 * roof_rim:.0f}% of the "

@@ -14,7 +14,8 @@ Selection rule when several clusters pass:
    crate beside it is not the vehicle the drone circled, however near the hint it lies. When the
    truck chosen (its parts merged, below) lies further from the hint than a share of its own length
    (:func:`check_hint_distance`), no truck is at the hint (refused): the vehicle the drone circled
-   was not reconstructed as one cluster, and another one would be measured instead;
+   was not reconstructed as one cluster, and another one would be measured instead (the measure stage
+   then clusters again at a coarser ε, :func:`measure.pipeline._truck_points`);
 2. without a hint: the largest cuboid volume; when the runner-up reaches ``ambiguity_ratio`` of
    it, the two are equally plausible and the stage refuses to guess.
 
@@ -33,6 +34,13 @@ import numpy as np
 from stereo_recon.core.errors import StageError
 
 log = logging.getLogger(__name__)
+
+
+class NoTruckError(StageError):
+    """No truck-like cluster in the cloud, or none at the centre hint (a clustering too fine can be the cause)."""
+
+    def __init__(self, message: str):
+        super().__init__("measure", message)
 
 
 @dataclass(frozen=True)
@@ -256,7 +264,7 @@ def check_hint_distance(truck_xyz_ground: np.ndarray, centre_hint_xy: np.ndarray
     box = cuboid(truck_xyz_ground[:, :2], truck_xyz_ground[:, 2])
     d = _footprint_distance(box, np.asarray(centre_hint_xy, float))
     if d > max_rel * box["length_m"]:
-        raise StageError("measure", f"{source}: no truck-like cluster at the centre hint: the nearest ({box['length_m']:.3g} x "
+        raise NoTruckError(f"{source}: no truck-like cluster at the centre hint: the nearest ({box['length_m']:.3g} x "
                                     f"{box['width_m']:.3g} x {box['height_m']:.3g} m) lies {d:.3g} m from it, {d / box['length_m']:.2f} x "
                                     f"its length (at most {max_rel:g}): the truck was not reconstructed as one cluster, or the "
                                     f"hint is off (`stereo-recon measure CLOUD --centre X,Y,Z` measures the vehicle nearest a "
@@ -286,7 +294,7 @@ def select_truck(xyz_ground: np.ndarray, labels: np.ndarray, filt: TruckFilter, 
     }
     if not candidates:
         why = "; ".join(f"{k}: {v} rejected (e.g. {examples[k]})" for k, v in rejected.items()) or "no clusters at all"
-        raise StageError("measure", f"{source}: no truck-like cluster ({n_lab} clusters; {why})")
+        raise NoTruckError(f"{source}: no truck-like cluster ({n_lab} clusters; {why})")
     chosen, stats["selection_rule"] = _choose(candidates, filt, centre_hint_xy, source)
     stats["chosen_label"] = int(chosen)
     return int(chosen), stats

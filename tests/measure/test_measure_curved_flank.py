@@ -289,6 +289,9 @@ def test_a_rounded_bodys_flank_seen_along_the_length_bounds_the_width():
     assert seen["status"] == "warn" and "rounded body's flank seen along" in seen["detail"], seen
     off = replace(TruckQualityConfig(), rounded_side_line=False)
     assert _face_gate("width", d, xyz[~flank], d["rules"], off)["status"] == "fail"
+    # Its own flag: the roof-and-end rule turned off leaves it on.
+    no_rims = replace(TruckQualityConfig(), side_rims=False)
+    assert _face_gate("width", d, xyz[~flank], d["rules"], no_rims)["status"] == "warn"
     assert _face_gate("width", d, xyz[~flank], {**FLAT_SIDED, "length": d["rules"]["length"]})["status"] == "fail"
     # The line seen along the rear quarter only: not bounded.
     short = ~flank & ~((np.abs(b) > 0.3 * W) & (a > l0 + 0.3 * (l1 - l0)))

@@ -305,3 +305,28 @@ def test_a_vehicle_away_from_the_orbit_centre_is_not_measured_in_place_of_the_tr
     parts = merge_truck_parts(xyz2, labels2, select_truck(xyz2, labels2, filt, hint2)[0], 0.15, 60)
     assert sorted(parts) == [0, 1]
     assert check_hint_distance(xyz2[np.isin(labels2, parts)], hint2, 0.15) == 0.0
+
+
+@pytest.mark.parametrize("gap,factor", [(0.2, 2.0), (0.24, 4.0)], ids=["bridged_at_2eps", "half_bridged_at_2eps"])
+def test_a_truck_reconstructed_in_patches_is_clustered_again_coarser_at_the_orbit_centre(gap, factor):
+    """A full-scale truck whose walls and roof hold only patches, ``gap`` m apart (ε = 3 x the point spacing,
+    here 0.125 m): at ε no cluster is truck-like at the orbit's centre; clustered coarser, the patches are one
+    truck read within 1 %. A gap of 0.24 m is bridged at 2 ε only where the noise narrows it, into a third of
+    the truck: the whole truck at 4 ε is taken."""
+    from measure.truck import NoTruckError
+
+    pts, truth = make_truck_scene(FULL_TRUCK, SceneSpec(spacing_m=0.06, noise_m=0.005), rng=21)
+    x, z = pts[:, 0], pts[:, 2]   # the scene's own frame: x along the truck from its rear, z up
+    lo, hi = 0.5 - gap / 2, 0.5 + gap / 2
+    cut = ((np.mod(x, 1.0) > lo) & (np.mod(x, 1.0) < hi) & (x > 0.5) & (x < truth["length_m"] - 0.5)) | (
+        (np.mod(z, 1.0) > lo) & (np.mod(z, 1.0) < hi) & (z < truth["height_m"] - 0.5))
+    pts = pts[~((truth["labels"] == 1) & cut)]
+    centre = truth["truck_centre"]
+    with pytest.raises(NoTruckError, match="no truck-like cluster at the centre hint"):
+        measure_points(pts, MeasureConfig(eps_retry_max=1.0), centre_hint=centre)
+    m = measure_points(pts, centre_hint=centre)
+    assert m.clusters["eps_factor"] == factor
+    assert max(_rel_errors(m, truth).values()) < 0.01, _rel_errors(m, truth)
+    if factor == 4.0:   # stopped at 2 eps, it reads the third of the truck joined there
+        part = measure_points(pts, MeasureConfig(eps_retry_max=2.0), centre_hint=centre)
+        assert part.clusters["eps_factor"] == 2.0 and part.length_m < 0.5 * truth["length_m"]
