@@ -76,6 +76,19 @@ class TruckQualityConfig:
     # it lifts one refusal, a full-scale tanker read W +1.80 % (0.6 sigma); a tanker whose right side is seen
     # along 25 % of the length and a model tanker read 68 % too wide (12 %) stay refused. False: off.
     rounded_side_line: bool = True
+    # Any face under min_face_coverage whose opposite face is seen (at least min_face_coverage) still bounds its
+    # dimension when the points within its band, pooled over its rims (the roof's edge, the foot, the walls' or
+    # the ends' edges) and what little of the face was matched, reach along it and up it: at least
+    # min_rim_coverage of 8 cells over 10-90 % of its width (an end) or length (a side), and of 8 cells up
+    # 10-90 % of the height, each holding 3 or more points. The rules above ask each rim to reach it on its
+    # own; a face seen only obliquely (the far side of a 240-260 deg arc) often keeps parts of several. Of the
+    # 22 draws the face gates refused on tuning seeds 2045-2051 (280 clouds) it lifts six faces on six draws,
+    # five now measured, read within 3.0 % (truth 0.0-1.9 sigma off; the sixth stays refused for its other
+    # side). Every refused face read 4.9 % or more off stays refused (the nearest: a model flatbed's front
+    # read +6 % reaches 50 % of its width but 12 % of its height); so do two sides read right, seen along 12
+    # and 25 % of the length. (Counted within the face's own 10-90 % only, it lifts none: its rims carry it.)
+    # False: off.
+    pooled_rims: bool = True
     # Orbit: azimuth range of the camera centres around the truck (deg) and their spread seen from it.
     min_orbit_arc_deg: float = 180.0
     warn_orbit_arc_deg: float = 300.0
@@ -257,6 +270,22 @@ def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[di
                         low.remove(f)
                         by_rims.append(f"{f} bounded by the rounded body's flank seen along {100 * line:.0f}% of the "
                                        "length")
+        for f in list(low) if c.pooled_rims and c.min_rim_coverage is not None else []:
+            # The rim rules above ask each rim to reach the face; a face seen only obliquely (the far side of a
+            # short arc) often keeps parts of several: pooled, they still place its plane.
+            other = faces[1] if f == faces[0] else faces[0]
+            if cover[other] < c.min_face_coverage:
+                continue
+            if dim == "length":
+                near = np.abs(a - (l1 if f == "front" else l0)) <= band_end
+                across, up = _cells_hit(b[near], w0, w1, min_points=3), _cells_hit(z[near], 0.0, H, min_points=3)
+            else:
+                near = np.abs(b - (w0 if f == "right" else w1)) <= band_side
+                across, up = _cells_hit(a[near], l0, l1, min_points=3), _cells_hit(z[near], 0.0, H, min_points=3)
+            if min(across, up) >= c.min_rim_coverage:
+                low.remove(f)
+                by_rims.append(f"{f} bounded by its rims, pooled: its band holds points along {100 * across:.0f}% of "
+                               f"its {'width' if dim == 'length' else 'length'} and up {100 * up:.0f}% of its height")
         status = "fail" if low else ("warn" if by_rims else "pass")
         out.append(_check(f"faces_{dim}", status,
                           f"{txt} of the face covered (need {100 * c.min_face_coverage:.0f}%)"

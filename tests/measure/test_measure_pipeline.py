@@ -322,8 +322,12 @@ def test_a_truck_reconstructed_in_patches_is_clustered_again_coarser_at_the_orbi
         (np.mod(z, 1.0) > lo) & (np.mod(z, 1.0) < hi) & (z < truth["height_m"] - 0.5))
     pts = pts[~((truth["labels"] == 1) & cut)]
     centre = truth["truck_centre"]
-    with pytest.raises(NoTruckError, match="no truck-like cluster at the centre hint"):
+    with pytest.raises(NoTruckError, match="no truck-like cluster at the centre hint") as err:
         measure_points(pts, MeasureConfig(eps_retry_max=1.0), centre_hint=centre)
+    assert "clustered at" not in str(err.value)
+    # Truck-like clusters far from the centre only, at every ε tried: refused, saying so.
+    with pytest.raises(NoTruckError, match=r"clustered at ε = 0\.12\d m and again at 2 and 4 x ε"):
+        measure_points(pts, centre_hint=centre + 30 * truth["heading"])
     m = measure_points(pts, centre_hint=centre)
     assert m.clusters["eps_factor"] == factor
     assert max(_rel_errors(m, truth).values()) < 0.01, _rel_errors(m, truth)

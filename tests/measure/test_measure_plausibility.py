@@ -350,10 +350,11 @@ def test_end_faces_unseen_but_walls_and_roof_reaching_them_bound_the_length(tmp_
                             "bounded by both side walls and the roof")
 
 
-def _without_left_side(roof_reaches_it: bool):
+def _without_left_side(roof_reaches_it: bool, streak_kept: bool = False):
     """The model truck with no point on its left side walls, wheels and rails, below the roof's level and
     away from the ends; with roof_reaches_it False also none on the roof within 15 % of the width of that
-    side (only the end faces reach it)."""
+    side (only the end faces reach it); with streak_kept a streak of the wall stays, 55-65 % up its height
+    along its rear half."""
     pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, noise_m=0.001), rng=7)
     L, W, H = truth["length_m"], truth["width_m"], truth["height_m"]
     rel = pts - truth["truck_centre"]
@@ -364,6 +365,8 @@ def _without_left_side(roof_reaches_it: bool):
         drop = truck & (across > 0.44 * W) & (height < 0.97 * H) & (np.abs(along) < 0.45 * L)
     else:
         drop = truck & (across > 0.35 * W) & (np.abs(along) < 0.45 * L)
+        if streak_kept:
+            drop &= ~((along < 0) & (np.abs(height - 0.6 * H) < 0.05 * H))
     return pts[~drop], truth
 
 
@@ -381,6 +384,25 @@ def test_side_wall_unseen_and_roof_not_reaching_it_makes_width_undecided(tmp_pat
     assert checks["faces_width"]["status"] == "fail" and "not seen" in checks["faces_width"]["detail"]
     assert m["verdict"]["dimensions"]["width"]["verdict"] == "undecided"
     assert m["verdict"]["overall"] == "undecided"
+
+
+def test_side_wall_unseen_but_its_rims_pooled_reaching_along_and_up_it_bound_the_width(tmp_path):
+    """The roof does not reach the left side and its wall holds one streak along half its length (12 % of the
+    face's cells), but both ends' edges reach it up its height (a face seen only obliquely keeps parts of
+    several rims): pooled they bound the width (a warning), read right. Without the streak (nothing along the
+    side) or with the rule off it stays unbounded."""
+    from dataclasses import replace
+
+    from measure.pipeline import measure_points
+    from measure.quality import TruckQualityConfig, face_checks
+
+    pts, truth = _without_left_side(roof_reaches_it=False, streak_kept=True)
+    _assert_bounded_by_rims(*_measured(tmp_path, pts, "streak"), truth, "width", "bounded by its rims, pooled")
+    m = measure_points(pts)
+    off = {c["name"]: c for c in face_checks(m, replace(TruckQualityConfig(), pooled_rims=False))}
+    assert off["faces_width"]["status"] == "fail"
+    bare = {c["name"]: c for c in face_checks(measure_points(_without_left_side(roof_reaches_it=False)[0]))}
+    assert bare["faces_width"]["status"] == "fail"
 
 
 def test_measurement_json_bytes_identical_for_identical_input(clouds, tmp_path):
