@@ -468,17 +468,18 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
         if centre_xy is None or cfg.eps_retry_max < 2:
             raise
         first = err
-    found = []
+    found, tried = [], []
     factor = 2.0
     while factor <= cfg.eps_retry_max:
+        tried.append(factor)
         try:
             found.append((factor, _truck_at(above, xyz_g, centre_xy, cfg, res, eps * factor, timings, source)))
         except StageError:
             pass   # none at the hint, or two covering it: one truck's halves cut lengthwise, vehicles do not overlap
         factor *= 2
     if not found:
-        tried = " and ".join(f"{f:g}" for f in 2.0 ** np.arange(1, int(np.log2(cfg.eps_retry_max)) + 1))
-        raise NoTruckError(f"{str(first).removeprefix('measure: ')}; clustered at ε = {eps:.3g} m and again at {tried} x ε")
+        raise NoTruckError(f"{str(first).removeprefix('measure: ')}; clustered at ε = {eps:.3g} m and again at "
+                           f"{' and '.join(f'{f:g}' for f in tried)} x ε")
     # A gap barely bridged joins part of the truck only: take the smallest ε whose truck holds nearly all the
     # points that the coarsest one's does.
     most = max(len(r[0]) for _, r in found)

@@ -270,22 +270,23 @@ def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[di
                         low.remove(f)
                         by_rims.append(f"{f} bounded by the rounded body's flank seen along {100 * line:.0f}% of the "
                                        "length")
-        for f in list(low) if c.pooled_rims and c.min_rim_coverage is not None else []:
-            # The rim rules above ask each rim to reach the face; a face seen only obliquely (the far side of a
-            # short arc) often keeps parts of several: pooled, they still place its plane.
-            other = faces[1] if f == faces[0] else faces[0]
-            if cover[other] < c.min_face_coverage:
-                continue
-            if dim == "length":
-                near = np.abs(a - (l1 if f == "front" else l0)) <= band_end
-                across, up = _cells_hit(b[near], w0, w1, min_points=3), _cells_hit(z[near], 0.0, H, min_points=3)
-            else:
-                near = np.abs(b - (w0 if f == "right" else w1)) <= band_side
-                across, up = _cells_hit(a[near], l0, l1, min_points=3), _cells_hit(z[near], 0.0, H, min_points=3)
-            if min(across, up) >= c.min_rim_coverage:
-                low.remove(f)
-                by_rims.append(f"{f} bounded by its rims, pooled: its band holds points along {100 * across:.0f}% of "
-                               f"its {'width' if dim == 'length' else 'length'} and up {100 * up:.0f}% of its height")
+        if c.pooled_rims and c.min_rim_coverage is not None:
+            for f in list(low):
+                # The rim rules above ask each rim to reach the face; a face seen only obliquely (the far side of a
+                # short arc) often keeps parts of several: pooled, they still place its plane.
+                if cover[faces[1] if f == faces[0] else faces[0]] < c.min_face_coverage:
+                    continue   # the opposite face unseen too: nothing holds the dimension's other end
+                if dim == "length":
+                    near = np.abs(a - (l1 if f == "front" else l0)) <= band_end
+                    along = _cells_hit(b[near], w0, w1, min_points=3)
+                else:
+                    near = np.abs(b - (w0 if f == "right" else w1)) <= band_side
+                    along = _cells_hit(a[near], l0, l1, min_points=3)
+                up = _cells_hit(z[near], 0.0, H, min_points=3)
+                if min(along, up) >= c.min_rim_coverage:
+                    low.remove(f)
+                    by_rims.append(f"{f} bounded by its rims, pooled: its band holds points along {100 * along:.0f}% of "
+                                   f"its {'width' if dim == 'length' else 'length'} and up {100 * up:.0f}% of its height")
         status = "fail" if low else ("warn" if by_rims else "pass")
         out.append(_check(f"faces_{dim}", status,
                           f"{txt} of the face covered (need {100 * c.min_face_coverage:.0f}%)"

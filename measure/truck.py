@@ -265,10 +265,10 @@ def check_hint_distance(truck_xyz_ground: np.ndarray, centre_hint_xy: np.ndarray
     d = _footprint_distance(box, np.asarray(centre_hint_xy, float))
     if d > max_rel * box["length_m"]:
         raise NoTruckError(f"{source}: no truck-like cluster at the centre hint: the nearest ({box['length_m']:.3g} x "
-                                    f"{box['width_m']:.3g} x {box['height_m']:.3g} m) lies {d:.3g} m from it, {d / box['length_m']:.2f} x "
-                                    f"its length (at most {max_rel:g}): the truck was not reconstructed as one cluster, or the "
-                                    f"hint is off (`stereo-recon measure CLOUD --centre X,Y,Z` measures the vehicle nearest a "
-                                    f"point you give)")
+                           f"{box['width_m']:.3g} x {box['height_m']:.3g} m) lies {d:.3g} m from it, {d / box['length_m']:.2f} x "
+                           f"its length (at most {max_rel:g}): the truck was not reconstructed as one cluster, or the "
+                           f"hint is off (`stereo-recon measure CLOUD --centre X,Y,Z` measures the vehicle nearest a "
+                           f"point you give)")
     return float(d)
 
 
