@@ -257,13 +257,14 @@ def face_checks(m, config: TruckQualityConfig = TruckQualityConfig()) -> list[di
         if dim == "width" and c.min_rim_coverage is not None:
             for f in list(low):
                 side = w0 if f == "right" else w1
-                roof_rim, rear_rim, front_rim = (_side_rims(a, b, z, side, band_side, (l0, l1), band_end, H, band_roof)
-                                                 if c.side_rims else (0.0, 0.0, 0.0))
-                if roof_rim >= c.min_rim_coverage and max(rear_rim, front_rim) >= c.min_rim_coverage:
-                    low.remove(f)
-                    by_rims.append(f"{f} bounded by the roof and an end reaching it ({100 * roof_rim:.0f}% of the "
-                                   f"roof's rim, {100 * rear_rim:.0f}/{100 * front_rim:.0f}% of the rear/front's)")
-                elif c.rounded_side_line and rounded:
+                if c.side_rims:
+                    roof_rim, rear_rim, front_rim = _side_rims(a, b, z, side, band_side, (l0, l1), band_end, H, band_roof)
+                    if roof_rim >= c.min_rim_coverage and max(rear_rim, front_rim) >= c.min_rim_coverage:
+                        low.remove(f)
+                        by_rims.append(f"{f} bounded by the roof and an end reaching it ({100 * roof_rim:.0f}% of the "
+                                       f"roof's rim, {100 * rear_rim:.0f}/{100 * front_rim:.0f}% of the rear/front's)")
+                        continue
+                if c.rounded_side_line and rounded:
                     # A rounded flank meets the side plane along one line, not over the face's height.
                     line = _cells_hit(a[np.abs(b - side) <= band_side], l0, l1, min_points=3)
                     if line >= c.min_rim_coverage:
