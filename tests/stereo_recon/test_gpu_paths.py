@@ -69,3 +69,11 @@ def test_gpu_remap_matches_cpu_within_0_01_px():
     cl = cv2.remap(img, mx, my, cv2.INTER_LINEAR)
     assert np.abs(gl.astype(int) - cl.astype(int))[inside].max() <= 2
     del torch
+
+
+@pytest.mark.skipif(gpu.cuda_available(), reason="a CUDA device is present: the benchmark runs instead")
+def test_gpu_benchmark_without_cuda_says_so_and_exits_2(benchmark_module, capsys):
+    bench = benchmark_module("bench_gpu")
+    assert bench.main([]) == 2
+    out = capsys.readouterr().out.strip().splitlines()
+    assert len(out) == 1 and "CUDA" in out[0]
