@@ -56,6 +56,12 @@ def main(argv: list[str] | None = None) -> int:
     fmx, fmy = rect_f.map_left
     inside = (fmx > 1) & (fmx < w - 2) & (fmy > 1) & (fmy < h - 2)
 
+    def versus(ref, other):
+        """|ref - other| (px) where both disparities are valid, and the share of pixels valid in one only."""
+        both = np.isfinite(ref) & np.isfinite(other) & inside
+        one = (np.isfinite(ref) ^ np.isfinite(other)) & inside
+        return np.abs(ref - other)[both], one.sum() / max(inside.sum(), 1)
+
     pairs = [(f.left, cv2.cvtColor(f.right, cv2.COLOR_BGR2GRAY)) for f in frames]
     for lb, rg in pairs[:3]:  # warm-up: CUDA context, kernels, cv2's thread pool
         gpu_r(lb, rg)
@@ -74,18 +80,17 @@ def main(argv: list[str] | None = None) -> int:
         if i % a.disparity_every == 0:
             dc = disparity_map(cv2.cvtColor(cl, cv2.COLOR_BGR2GRAY), cr, DisparityConfig())
             dg = disparity_map(cv2.cvtColor(gl, cv2.COLOR_BGR2GRAY), gr, DisparityConfig())
-            both = np.isfinite(dc) & np.isfinite(dg) & inside
-            one = (np.isfinite(dc) ^ np.isfinite(dg)) & inside
-            d_disp.append(np.abs(dc - dg)[both])
-            only_one.append(one.sum() / max(inside.sum(), 1))
+            diff_g, one_g = versus(dc, dg)
+            d_disp.append(diff_g)
+            only_one.append(one_g)
             # The same comparison on the CPU alone (float maps against 16SC2): how much SGBM moves when the
             # images move by the map type's sub-grey-level rounding, with no GPU involved.
             fl = cv2.remap(cv2.cvtColor(lb, cv2.COLOR_BGR2GRAY), *rect_f.map_left, cv2.INTER_LINEAR)
             fr_ = cv2.remap(rg, *rect_f.map_right, cv2.INTER_LINEAR)
             df = disparity_map(fl, fr_, DisparityConfig())
-            both = np.isfinite(dc) & np.isfinite(df) & inside
-            d_ref.append(np.abs(dc - df)[both])
-            only_ref.append(((np.isfinite(dc) ^ np.isfinite(df)) & inside).sum() / max(inside.sum(), 1))
+            diff_f, one_f = versus(dc, df)
+            d_ref.append(diff_f)
+            only_ref.append(one_f)
     di = np.concatenate(d_img)
     dd = np.concatenate(d_disp)
     dr = np.concatenate(d_ref)
