@@ -43,8 +43,9 @@ def register(subparsers) -> None:
     p.set_defaults(func=_run)
 
 
-# Options that shape a preset's rendering; a random draw takes all of them from its spec.
-_PRESET_ONLY = (("frames", None), ("rectified", False), ("depth", False), ("video_format", "avi"), ("flight", "orbit"), ("arc", None),
+# Options that shape a preset's rendering; a random draw takes all of them from its spec. (``--depth`` is not
+# one: it adds the rendered depth maps beside the same video, for ``benchmarks/bench_depth_bias.py``.)
+_PRESET_ONLY = (("frames", None), ("rectified", False), ("video_format", "avi"), ("flight", "orbit"), ("arc", None),
                 ("quality", 90), ("noise", 1.5), ("blur", 0.0), ("no_shadows", False))
 
 
@@ -57,7 +58,8 @@ def _run_random(args) -> int:
         raise ConfigError(f"--random: {', '.join('--' + n.replace('_', '-') for n in given)} apply to --preset only (a draw's spec sets them)")
     if args.seed < 0:
         raise ConfigError(f"--seed: must be >= 0, got {args.seed}")
-    truths = render_random(args.random, args.seed, args.out, max_frames=args.max_frames, scale=args.scale_only, resolution=args.resolution)
+    truths = render_random(args.random, args.seed, args.out, max_frames=args.max_frames, scale=args.scale_only, resolution=args.resolution,
+                           depth=args.depth)
     for i, t in enumerate(truths):
         sp = t["random_spec"]
         print(f"{args.out}/draw_{i:03d}: {t['frames']} frames, {sp['truck']['scale']} {sp['truck']['kind']} {t['length_m']:.3f} x "

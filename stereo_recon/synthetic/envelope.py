@@ -510,8 +510,11 @@ def _light_and_ground(scene, s: SceneDraw) -> None:
                                         stain_mix=0.45 if s.ground_class != "busy" else 0.7)
 
 
-def render_draw(spec: RandomSceneSpec, out_dir) -> dict:
-    """Render one draw into ``out_dir`` (the preset layout; truth.json carries ``random_spec``); returns the truth."""
+def render_draw(spec: RandomSceneSpec, out_dir, depth: bool = False) -> dict:
+    """Render one draw into ``out_dir`` (the preset layout; truth.json carries ``random_spec``); returns the truth.
+
+    depth: also write the left eye's rendered z-depth maps (``depth/NNNNNN.npy``); the video is the same either way.
+    """
     from stereo_recon.core.manifest import Stopwatch, to_jsonable
     from stereo_recon.synthetic.sequence import write_sequence
 
@@ -523,7 +526,7 @@ def render_draw(spec: RandomSceneSpec, out_dir) -> dict:
               "max_frames": spec.max_frames, "resolution": spec.resolution, "video_format": "avi" if c.codec == "MJPG" else "mp4"}
     write_sequence(out_dir, d.scene, d.rig, d.poses, d.truth, d.render_config, fps=spec.flight.fps, noise_seed=d.noise_seed,
                    noise_rng=d.noise_rng, exposure=d.exposure, video_format=params["video_format"], jpeg_quality=c.jpeg_quality,
-                   depth=False, run_params=params, seed=spec.seed, stopwatch=sw)
+                   depth=depth, run_params=params, seed=spec.seed, stopwatch=sw)
     log.info("random draw %s: %d frames in %.1f s -> %s", spec.name, spec.flight.frames, sum(sw.timings_s.values()), out_dir)
     return to_jsonable(d.truth)
 
@@ -534,22 +537,25 @@ def draw_dir(out_dir, index: int) -> Path:
 
 
 def render_random(count: int, seed: int, out_dir, *, max_frames: int | None = None, scale: str | None = None,
-                  resolution: str = "HD720") -> list[dict]:
-    """Render draws 0..count-1 of ``seed`` into ``out_dir/draw_NNN`` (a folder whose truth.json holds the same spec is reused)."""
+                  resolution: str = "HD720", depth: bool = False) -> list[dict]:
+    """Render draws 0..count-1 of ``seed`` into ``out_dir/draw_NNN`` (a folder whose truth.json holds the same spec is
+    reused); depth: with the rendered depth maps (``render_draw``)."""
     if int(count) < 1:
         raise ConfigError(f"--random: the number of draws must be >= 1, got {count}")
-    return [ensure_rendered(draw_spec(seed, i, max_frames=max_frames, scale=scale, resolution=resolution), draw_dir(out_dir, i))
-            for i in range(int(count))]
+    return [ensure_rendered(draw_spec(seed, i, max_frames=max_frames, scale=scale, resolution=resolution), draw_dir(out_dir, i),
+                            depth=depth) for i in range(int(count))]
 
 
-def ensure_rendered(spec: RandomSceneSpec, d) -> dict:
+def ensure_rendered(spec: RandomSceneSpec, d, depth: bool = False) -> dict:
     """The truth of draw ``spec`` in folder ``d``: reused when ``d`` holds this very draw, rendered when ``d`` has none;
-    ConfigError when ``d`` holds another draw (never overwritten)."""
+    ConfigError when ``d`` holds another draw, or this draw without the depth maps asked for (never overwritten)."""
     existing = load_draw_spec(d)
     if existing is None:
-        return render_draw(spec, d)
+        return render_draw(spec, d, depth=depth)
     if existing != spec:
         raise ConfigError(f"{d}: holds another draw (its truth.json's random_spec differs); choose another --out")
+    if depth and not (Path(d) / "depth").is_dir():
+        raise ConfigError(f"{d}: holds this draw without its depth maps; choose another --out for --depth")
     log.info("random draw %s: reusing %s", spec.name, d)
     return _read_truth(d)
 

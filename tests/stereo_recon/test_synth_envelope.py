@@ -180,3 +180,29 @@ def test_synth_random_cli_writes_reuses_and_refuses(tmp_path, capsys):
     assert "holds another draw" in capsys.readouterr().err
     assert main(["synth", "--random", "1", "--noise", "3", "--out", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()
+
+
+def test_synth_random_depth_adds_the_rendered_depth_beside_the_same_video(tmp_path, capsys):
+    """``--depth`` is no part of a draw's spec: the video is byte for byte the draw's, with the left eye's rendered
+    z-depth beside it (what ``benchmarks/bench_depth_bias.py`` compares a run's depth with); a folder holding the
+    draw without depth maps is refused for ``--depth``, not silently reused."""
+    import hashlib
+
+    from stereo_recon.app.cli import main
+
+    args = ["synth", "--random", "1", "--seed", "3", "--max-frames", "2", "--resolution", "VGA"]
+    assert main(args + ["--out", str(tmp_path / "plain")]) == 0
+    assert main(args + ["--depth", "--out", str(tmp_path / "depth")]) == 0
+    plain, deep = tmp_path / "plain" / "draw_000", tmp_path / "depth" / "draw_000"
+    video = next(p.name for p in plain.iterdir() if p.name.startswith("video."))
+    assert hashlib.sha256((plain / video).read_bytes()).digest() == hashlib.sha256((deep / video).read_bytes()).digest()
+    maps = sorted((deep / "depth").glob("*.npy"))
+    assert len(maps) == 2 and not (plain / "depth").exists()
+    truth = json.loads((deep / "truth.json").read_text())
+    z = np.load(maps[0])
+    # The truck is in view: some pixels lie nearer than its centre's distance from the first camera plus its length.
+    cam = np.loadtxt(deep / "poses_gt.txt")[0, 1:4]
+    assert z.shape == (376, 672) and np.isfinite(z).mean() > 0.5
+    assert np.nanmin(z) < np.linalg.norm(cam) + truth["length_m"]
+    assert main(args + ["--depth", "--out", str(tmp_path / "plain")]) == 2
+    assert "without its depth maps" in capsys.readouterr().err
