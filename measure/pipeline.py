@@ -82,6 +82,10 @@ class MeasureConfig:
                                              # None: off). A user's --centre is judged by quality.check_centre instead
     merge_gap_res: float = 15.0              # clusters in line with the truck within this gap join it (a cab across
                                              # the gap to its box); 0 disables (the paper's single cluster)
+    opposite_side_max_offset_rel: float | None = 0.1  # with an orbit's centre as the hint lying beside the truck's parts,
+                                             # the cluster across it that is the truck's other side joins them when
+                                             # the two centre on the hint within this x their length (None: off;
+                                             # see measure.truck.join_opposite_side)
     # Dimension rules (see measure.dimensions).
     peak_min_rel: float = 0.15
     end_window: float = 0.04
@@ -493,7 +497,7 @@ def _truck_at(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfi
               timings: dict, source: str):
     """FoF at ε = eps (m), the truck filters and the selection: (truck points, mask over ``above``, filter, stats)."""
     from measure.fof import fof_clusters
-    from measure.truck import TruckFilter, check_hint_distance, merge_truck_parts, select_truck
+    from measure.truck import TruckFilter, check_hint_distance, join_opposite_side, merge_truck_parts, select_truck
 
     t = time.perf_counter()
     labels = fof_clusters(above, eps)
@@ -515,6 +519,11 @@ def _truck_at(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfi
             parts = merge_truck_parts(xyz_g, labels, chosen, cfg.merge_gap_res * res, max(cfg.min_cluster_points // 5, 20))
         else:
             parts = [chosen]
+        if centre_xy is not None and cfg.opposite_side_max_offset_rel is not None:
+            joined = join_opposite_side(xyz_g, labels, parts, centre_xy, max(cfg.min_cluster_points // 5, 20),
+                                        cfg.opposite_side_max_offset_rel)
+            cstats["opposite_side_labels"] = sorted(set(joined) - set(parts))
+            parts = joined
         cstats["merged_labels"] = parts
         in_truck = np.isin(labels, parts)
         if centre_xy is not None and cfg.max_hint_distance_rel is not None:

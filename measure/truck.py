@@ -162,6 +162,69 @@ def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, g
     return sorted(members)
 
 
+def join_opposite_side(xyz_ground: np.ndarray, labels: np.ndarray, parts: list[int], centre_hint_xy: np.ndarray,
+                       min_points: int, max_hint_offset_rel: float = 0.1, max_one_side_width_rel: float = 0.4,
+                       max_side_share: float = 0.4, min_length_overlap: float = 0.6,
+                       height_ratio: tuple[float, float] = (0.7, 1.3), min_length_to_width: float = 2.0) -> list[int]:
+    """Labels of the truck: ``parts`` plus the clusters that are its other side, across the centre hint, when the
+    parts hold one side only (one side wall whose roof and ends were not reconstructed, standing apart from the
+    other: a black roof, plain ends).
+
+    The parts hold one side when their points at or above half their height (wheels, chassis and the skirt of
+    ground at the truck's foot reach under the body) lie wholly to one side of the hint, across a width under
+    ``max_one_side_width_rel`` x their height: a whole truck is at least half as wide as it is tall (0.5-1.2
+    over the envelope's model and full-scale trucks). A cluster then joins when it has at least ``min_points``
+    points, lies beyond the hint (its centre) and beyond that side, is a side itself (its width at most
+    ``max_side_share`` of the joined truck's), overlaps the parts' length range by ``min_length_overlap`` of the
+    shorter, reaches a height within ``height_ratio`` of theirs, and the two sides together are centred on the
+    hint within ``max_hint_offset_rel`` of their length (the orbit's centre lies that close to the truck's). The
+    joined footprint keeps a truck's shape (length >= ``min_length_to_width`` x width: 2.1-7.8 over the
+    envelope), else nothing joins.
+    xyz_ground: (N, 3) points in the ground frame (m); labels: (N,) FoF labels; centre_hint_xy: (2,) (m).
+    """
+    pts = xyz_ground[np.isin(labels, parts)]
+    box = cuboid(pts[:, :2], pts[:, 2])
+    u1 = box["axis_xy"]
+    u2 = np.array([-u1[1], u1[0]])
+    hint = np.asarray(centre_hint_xy, float)
+    H = pts[:, 2].max()
+    upper = pts[pts[:, 2] >= 0.5 * H]
+    lo_b, hi_b = np.quantile(upper[:, :2] @ u2, [0.02, 0.98])
+    hb = hint @ u2
+    if lo_b <= hb <= hi_b or hi_b - lo_b >= max_one_side_width_rel * H:
+        return sorted(parts)
+    side = 1.0 if hb > hi_b else -1.0
+    hb *= side
+    # b grows towards the hint from here on: the parts' upper side nearest the hint, and their far side (the wall
+    # the parts do have).
+    near, back = (hi_b, lo_b) if side > 0 else (-lo_b, -hi_b)
+    a = pts[:, :2] @ u1
+    A0, A1 = a.min(), a.max()
+    n_lab = int(labels.max()) + 1 if len(labels) else 0
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(-1, n_lab + 1))
+    joined, lo, hi, far = [], A0, A1, near
+    for lab in range(n_lab):
+        if lab in parts or bounds[lab + 2] - bounds[lab + 1] < min_points:
+            continue
+        q = xyz_ground[order[bounds[lab + 1] : bounds[lab + 2]]]
+        qa, qb = q[:, :2] @ u1, side * (q[:, :2] @ u2)
+        a0, a1, b0, b1, h = qa.min(), qa.max(), qb.min(), qb.max(), q[:, 2].max()
+        overlap = min(a1, A1) - max(a0, A0)
+        if (b0 <= near or 0.5 * (b0 + b1) <= hb or b1 - b0 > max_side_share * (b1 - back)
+                or overlap < min_length_overlap * min(a1 - a0, A1 - A0)
+                or not height_ratio[0] * H <= h <= height_ratio[1] * H):
+            continue
+        length = max(a1, A1) - min(a0, A0)
+        if abs(0.5 * (b1 + back) - hb) > max_hint_offset_rel * length:
+            continue
+        joined.append(lab)
+        lo, hi, far = min(lo, a0), max(hi, a1), max(far, b1)
+    if not joined or (hi - lo) < min_length_to_width * (far - back):
+        return sorted(parts)
+    return sorted([*parts, *joined])
+
+
 def _filter_reason(box: dict, filt: TruckFilter) -> tuple[str, str] | None:
     """(rule, text) of the first size or shape filter a cluster's cuboid fails (m), None when it passes."""
     L, W, H = box["length_m"], box["width_m"], box["height_m"]

@@ -334,3 +334,46 @@ def test_a_truck_reconstructed_in_patches_is_clustered_again_coarser_at_the_orbi
     if factor == 4.0:   # stopped at 2 eps, it reads the third of the truck joined there
         part = measure_points(pts, MeasureConfig(eps_retry_max=2.0), centre_hint=centre)
         assert part.clusters["eps_factor"] == 2.0 and part.length_m < 0.5 * truth["length_m"]
+
+
+def _sides_only(pts, truth, strips_m):
+    """The truck's points within strips_m[s] (m) of its side s (local y = s W/2, s = -1 or 1) and everything else
+    in the scene: a truck whose roof, ends and cab front were reconstructed only near its sides (a black roof
+    lit on one side, plain ends)."""
+    local = (pts - truth["translation"]) @ truth["rotation"]   # x along the truck from its rear, y across, z up
+    W = truth["width_m"]
+    on_side = np.zeros(len(pts), bool)
+    for s, strip in strips_m.items():
+        on_side |= s * local[:, 1] > W / 2 - strip
+    return pts[(truth["labels"] != 1) | on_side]
+
+
+def test_a_truck_seen_as_two_side_walls_is_joined_across_the_orbit_centre():
+    """Tuning draw 2053/20 (a black full-scale semi-trailer): its roof and ends gave no depth, so its two side
+    walls stood as separate clusters and the truck was refused as one-sided ("right not seen"). The wall across
+    the orbit's centre is the truck's other side: joined, the truck reads within 1 %."""
+    pts, truth = make_truck_scene(FULL_TRUCK, SceneSpec(spacing_m=0.06, noise_m=0.005), rng=23)
+    walls = _sides_only(pts, truth, {-1: 1.0, 1: 0.1})   # one side with part of the roof, the other a bare wall
+    centre = truth["truck_centre"]
+    m = measure_points(walls, centre_hint=centre)
+    assert m.clusters["opposite_side_labels"], m.clusters
+    assert abs(m.width_m / truth["width_m"] - 1) < 0.01 and abs(m.length_m / truth["length_m"] - 1) < 0.01, \
+        (m.length_m, m.width_m)
+    # Without the rule one wall is measured: the width is not bounded.
+    one = measure_points(walls, MeasureConfig(opposite_side_max_offset_rel=None), centre_hint=centre)
+    assert one.width_m < 0.5 * truth["width_m"]
+    # A whole truck never joins anything across the hint, even with a vehicle parked beside it.
+    pts2, truth2 = make_truck_scene(FULL_TRUCK, SceneSpec(spacing_m=0.06, noise_m=0.005, second_vehicle_gap_m=2.6), rng=23)
+    m2 = measure_points(pts2, centre_hint=truth2["truck_centre"])
+    assert m2.clusters["opposite_side_labels"] == []
+    assert abs(m2.width_m / truth2["width_m"] - 1) < 0.01, m2.width_m
+
+
+def test_a_vehicle_beside_a_one_sided_truck_is_not_taken_for_its_other_side():
+    """Only the truck's wall away from a vehicle parked a width beside it was reconstructed: the vehicle lies
+    across the orbit's centre but centres the pair 1.2 m (0.1 L) off it, so it does not join."""
+    pts, truth = make_truck_scene(FULL_TRUCK, SceneSpec(spacing_m=0.06, noise_m=0.005, second_vehicle_gap_m=2.55), rng=23)
+    walls = _sides_only(pts, truth, {-1: 1.0})
+    m = measure_points(walls, centre_hint=truth["truck_centre"])
+    assert m.clusters["opposite_side_labels"] == []
+    assert m.width_m < 0.5 * truth["width_m"]
