@@ -515,13 +515,13 @@ def _truck_at(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfi
     )
     try:
         chosen, cstats = select_truck(xyz_g, labels, filt, centre_xy, source=source)
+        part_min_points = max(cfg.min_cluster_points // 5, 20)   # a part of the truck, not a truck of its own
         if cfg.merge_gap_res > 0:
-            parts = merge_truck_parts(xyz_g, labels, chosen, cfg.merge_gap_res * res, max(cfg.min_cluster_points // 5, 20))
+            parts = merge_truck_parts(xyz_g, labels, chosen, cfg.merge_gap_res * res, part_min_points)
         else:
             parts = [chosen]
         if centre_xy is not None and cfg.opposite_side_max_offset_rel is not None:
-            joined = join_opposite_side(xyz_g, labels, parts, centre_xy, max(cfg.min_cluster_points // 5, 20),
-                                        cfg.opposite_side_max_offset_rel)
+            joined = join_opposite_side(xyz_g, labels, parts, centre_xy, part_min_points, cfg.opposite_side_max_offset_rel)
             cstats["opposite_side_labels"] = sorted(set(joined) - set(parts))
             parts = joined
         cstats["merged_labels"] = parts

@@ -119,6 +119,23 @@ def _footprint_distance(box: dict, pt: np.ndarray) -> float:
     return float(np.hypot(da, db))
 
 
+def _cluster_ranges(xyz_ground: np.ndarray, labels: np.ndarray, u1: np.ndarray, u2: np.ndarray, min_points: int,
+                    skip: set[int]) -> dict[int, tuple[float, float, float, float, float]]:
+    """{label: (min, max along u1, min, max along u2, top height)} (m) of the clusters with at least ``min_points``
+    points, those in ``skip`` left out. u1, u2: (2,) directions in the ground plane."""
+    n_lab = int(labels.max()) + 1 if len(labels) else 0
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(-1, n_lab + 1))
+    out = {}
+    for lab in range(n_lab):
+        if lab in skip or bounds[lab + 2] - bounds[lab + 1] < min_points:
+            continue
+        q = xyz_ground[order[bounds[lab + 1] : bounds[lab + 2]]]
+        a, b = q[:, :2] @ u1, q[:, :2] @ u2
+        out[lab] = (a.min(), a.max(), b.min(), b.max(), q[:, 2].max())
+    return out
+
+
 def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, gap_m: float, min_points: int,
                       min_width_overlap: float = 0.6) -> list[int]:
     """Labels of clusters that continue the chosen truck along its length (a cab across the gap
@@ -130,21 +147,12 @@ def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, g
     the truck shares no width range and never joins; one parked in line farther than ``gap_m``
     does not either. Repeats until nothing more joins. Returns the sorted labels, chosen included.
     """
-    n_lab = int(labels.max()) + 1 if len(labels) else 0
-    order = np.argsort(labels, kind="stable")
-    bounds = np.searchsorted(labels[order], np.arange(-1, n_lab + 1))
     members = {chosen}
     pts = xyz_ground[labels == chosen]
     box = cuboid(pts[:, :2], pts[:, 2])
     u1 = box["axis_xy"]
     u2 = np.array([-u1[1], u1[0]])
-    rng_of = {}
-    for lab in range(n_lab):
-        if lab == chosen or bounds[lab + 2] - bounds[lab + 1] < min_points:
-            continue
-        q = xyz_ground[order[bounds[lab + 1] : bounds[lab + 2]]]
-        a, b = q[:, :2] @ u1, q[:, :2] @ u2
-        rng_of[lab] = (a.min(), a.max(), b.min(), b.max(), q[:, 2].max())
+    rng_of = _cluster_ranges(xyz_ground, labels, u1, u2, min_points, {chosen})
     a, b = pts[:, :2] @ u1, pts[:, :2] @ u2
     A0, A1, B0, B1, H = a.min(), a.max(), b.min(), b.max(), pts[:, 2].max()
     changed = True
@@ -200,16 +208,8 @@ def join_opposite_side(xyz_ground: np.ndarray, labels: np.ndarray, parts: list[i
     near, back = (hi_b, lo_b) if side > 0 else (-lo_b, -hi_b)
     a = pts[:, :2] @ u1
     A0, A1 = a.min(), a.max()
-    n_lab = int(labels.max()) + 1 if len(labels) else 0
-    order = np.argsort(labels, kind="stable")
-    bounds = np.searchsorted(labels[order], np.arange(-1, n_lab + 1))
     joined, lo, hi, far = [], A0, A1, near
-    for lab in range(n_lab):
-        if lab in parts or bounds[lab + 2] - bounds[lab + 1] < min_points:
-            continue
-        q = xyz_ground[order[bounds[lab + 1] : bounds[lab + 2]]]
-        qa, qb = q[:, :2] @ u1, side * (q[:, :2] @ u2)
-        a0, a1, b0, b1, h = qa.min(), qa.max(), qb.min(), qb.max(), q[:, 2].max()
+    for lab, (a0, a1, b0, b1, h) in _cluster_ranges(xyz_ground, labels, u1, side * u2, min_points, set(parts)).items():
         overlap = min(a1, A1) - max(a0, A0)
         if (b0 <= near or 0.5 * (b0 + b1) <= hb or b1 - b0 > max_side_share * (b1 - back)
                 or overlap < min_length_overlap * min(a1 - a0, A1 - A0)
