@@ -114,6 +114,9 @@ class MeasureConfig:
     roof_stretch_min_share: float | None = 0.25  # the roof level of the stretches of the length whose upper surface lies
     roof_stretch_sigmas: float = 3.0            # this many height bandwidths above the level of all the points, when
                                                 # they make this share of the length (None: off; see DimensionConfig)
+    heading_wall_max_nz: float | None = 0.3     # the length axis turned to the walls' sharpest projection, its direction
+                                                # picked on the points of near-vertical surfaces (|normal z| below
+                                                # this; None: all points; see measure.dimensions.DimensionConfig)
     width_min_height: float | None = 0.15       # the width's extent judged from the points at or above this share of the
                                                 # top (the ground's skirt at the truck's foot left out; None: all points,
                                                 # as the paper; see measure.dimensions.DimensionConfig)
