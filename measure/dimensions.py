@@ -753,7 +753,8 @@ def _ground_axes(xy: np.ndarray, resolution_m: float, walls: np.ndarray | None =
     _, _, vt = np.linalg.svd(xy[::stride] - c0, full_matrices=False)
     u_pca = vt[0]
     pts = xy[::stride] - c0
-    coarse = pts[walls[::stride]] if walls is not None and int(walls[::stride].sum()) >= 200 else None
+    w = None if walls is None else walls[::stride]
+    coarse = pts[w] if w is not None and int(w.sum()) >= 200 else None
     u1, turn_deg = refine_heading(pts, u_pca, resolution_m, coarse_xy=coarse)
     u2 = np.array([-u1[1], u1[0]])
     return c0, u_pca, u1, u2, turn_deg
