@@ -28,7 +28,7 @@ def test_depth_errors_per_surface_class(tmp_path, benchmark_module):
     truth = {"height_m": H, "length_m": L, "truck_corners_world_m": [[-1, -0.3, 0], [1, -0.3, 0], [1, 0.3, 0], [-1, 0.3, 0]]}
     z_est = z_gt * np.where(on_roof, 1.01, 1.0)
     X = np.stack([x, y, np.ones_like(x)], -1).reshape(-1, 3) * z_est.reshape(-1, 1)
-    res = mod._errors(X, 0, tmp_path, rig, T, truth)
+    res = mod._errors(X, 0, mod._rendered_depth(tmp_path, truth), rig, T, truth)
     assert abs(res["roof"][0] - 0.01) < 1e-4, res
     assert abs(res["ground<1L"][0]) < 1e-4, res
     assert "sides" not in res  # seen from straight above: no side wall
@@ -56,7 +56,61 @@ def test_side_errors_split_by_distance_to_the_nearest_hole(tmp_path, benchmark_m
     near[97:133, 137:183] = True
     z_est[near & np.isfinite(z_est)] *= 1.02
     X = mod._pixels(z_est, K)
-    res = mod._errors(X, 0, tmp_path, rig, T, truth, mod._hole_distance(z_est))
+    res = mod._errors(X, 0, mod._rendered_depth(tmp_path, truth), rig, T, truth, mod._hole_distance(z_est))
     assert abs(res["sides 0-3px"][0] - 0.02) < 1e-3, res
     assert abs(res["sides 10-px"][0]) < 1e-4, res
     assert abs(res["sides"][0]) < 1e-4, res                        # the near band is a small share
+
+
+def test_walls_and_a_flatbed_deck_edge_are_their_own_classes(tmp_path, benchmark_module):
+    """A camera 1 m beside a truck's side plane (y = -W/2 in its own frame, turned 90 deg in the world), the depth
+    0.5 % too far: a box's side plane reads as ``walls`` (20-80 % of H), a flatbed's as ``deck edge`` (its deck
+    is the only part reaching that plane), each with the bias as built and without the other class."""
+    mod = benchmark_module("bench_depth_bias")
+    w, h, f = 320, 240, 200.0
+    K = np.array([[f, 0, w / 2 - 0.5], [0, f, h / 2 - 0.5], [0, 0, 1.0]])
+    rig = SimpleNamespace(K1=K, D1=np.zeros(5))
+    L, W, H = 4.0, 0.6, 2.0
+    # The truck's x axis is the world's y axis: its side plane y_truck = -W/2 is the world plane x = +W/2.
+    T_truck = np.eye(4)
+    T_truck[:3, :3] = np.array([[0.0, -1.0, 0], [1.0, 0, 0], [0, 0, 1.0]])
+    T = np.eye(4)
+    T[:3, :3] = np.array([[0.0, 0, -1.0], [-1.0, 0, 0], [0, -1.0, 0]])  # camera z = world -x, camera y = world -z
+    T[:3, 3] = [W / 2 + 1.0, 0.0, 1.0]
+    z_gt = np.full((h, w), 1.0)
+    (tmp_path / "depth").mkdir()
+    np.save(tmp_path / "depth" / "000000.npy", z_gt.astype(np.float32))
+    X = mod._pixels(z_gt * 1.005, K)
+    corners = [[-W / 2, -L / 2, 0], [W / 2, -L / 2, 0], [W / 2, L / 2, 0], [-W / 2, L / 2, 0]]
+    for body, cls, other in (("box", "walls", "deck edge"), ("flatbed", "deck edge", "walls")):
+        truth = {"height_m": H, "length_m": L, "width_m": W, "truck_corners_world_m": corners,
+                 "truck": {"body": body, "T_world_truck": T_truck.tolist()}}
+        res = mod._errors(X, 0, mod._rendered_depth(tmp_path, truth), rig, T, truth)
+        assert other not in res, (body, res)
+        assert abs(res[cls][0] - 0.005) < 1e-4, (body, res)
+
+
+def test_a_random_draw_without_depth_maps_is_rendered_again(tmp_path, benchmark_module):
+    """A ``bench --random`` draw keeps no depth maps: its truth's spec renders the same scene and poses again, and
+    the depth comes out as ``synth --depth`` wrote it."""
+    import json
+    import shutil
+
+    from stereo_recon.app.cli import main
+
+    mod = benchmark_module("bench_depth_bias")
+    out = tmp_path / "d"
+    assert main(["synth", "--random", "1", "--seed", "3", "--max-frames", "2", "--resolution", "VGA", "--depth",
+                 "--out", str(out)]) == 0
+    draw = next(p for p in out.iterdir() if (p / "truth.json").is_file())
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    shutil.copy(draw / "truth.json", bare / "truth.json")
+    truth = json.loads((bare / "truth.json").read_text())
+    depth_of = mod._rendered_depth(bare, truth)
+    for idx in (0, 1):
+        again, saved = depth_of(idx), np.load(draw / "depth" / f"{idx:06d}.npy")
+        assert again.shape == saved.shape
+        assert np.array_equal(np.isfinite(again), np.isfinite(saved))
+        ok = np.isfinite(saved)
+        assert np.max(np.abs(again[ok] - saved[ok])) < 1e-6
