@@ -7,7 +7,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from stereo_recon.motion_stereo import MotionStereoConfig, motion_depth, rectify_motion_pair, rig_depth_for_scale
+from stereo_recon.motion_stereo import (MotionStereoConfig, motion_depth, rectify_motion_pair, rig_depth_for_scale,
+                                        sparse_rig_ratios)
 from stereo_recon.stages.state import FusionPlan, RunContext, Setup, Streamed, WideDepth
 
 log = logging.getLogger(__name__)
@@ -19,7 +20,9 @@ def wide_view(idx: int, j: int, T_a: np.ndarray, T_b: np.ndarray, setup: Setup, 
 
     T_a, T_b: world-from-camera poses (m) of the two frames; the npz holds the view's colour and depth
     (m) resampled into the pair's rectified frame, that frame's K (px) and its rotation R_rect. for_scale:
-    the view's rig pair is matched again (``rig_depth_for_scale``) for the trajectory's scale.
+    the view measures the trajectory's scale (``rig_scale_ratio_median``): its corners tracked into the rig's
+    right eye and the partner (``sparse_rig_ratios``, scale_mode "lk") or its rig pair matched again with SGBM
+    (``rig_depth_for_scale``).
     """
     import cv2
 
@@ -34,11 +37,17 @@ def wide_view(idx: int, j: int, T_a: np.ndarray, T_b: np.ndarray, setup: Setup, 
     fb = setup.focal_px * setup.baseline_m
     right = work / "right" / f"{idx:06d}.png"
     scale_depth = None
-    if for_scale and right.is_file():
+    if for_scale and right.is_file() and motion.scale_mode != "lk":
         scale_depth = rig_depth_for_scale(gray, cv2.imread(str(right), cv2.IMREAD_GRAYSCALE), rig_depth,
                                           setup.disparity, motion, fb)
     z, mc = motion_depth(gray, partner, rig_depth, pair, setup.disparity, motion, fb, plan.fusion.depth_max_m,
                          scale_depth_a_m=scale_depth)
+    if for_scale and right.is_file() and motion.scale_mode == "lk":
+        ratios = sparse_rig_ratios(gray, cv2.imread(str(right), cv2.IMREAD_GRAYSCALE), partner, setup.K, T_a, T_b, fb,
+                                   rig_depth, motion)
+        mc["rig_scale_corners"] = float(len(ratios))
+        if len(ratios) >= motion.scale_min_corners:
+            mc["rig_scale_ratio_median"] = float(np.median(ratios))
     np.savez(work / "wide" / f"{idx:06d}.npz", color=cv2.remap(color, *pair.maps_a, cv2.INTER_LINEAR),
              depth=z, K=pair.K_rect, R_rect=pair.R_rect_a)
     log.debug("motion stereo: view %d with frame %d, baseline %.3f m, %s", idx, j, pair.baseline_m, mc)
@@ -46,7 +55,10 @@ def wide_view(idx: int, j: int, T_a: np.ndarray, T_b: np.ndarray, setup: Setup, 
 
 
 def scale_view_indices(todo: list[int], motion: MotionStereoConfig) -> set[int]:
-    """The paired views whose rig pair is matched again for the scale: up to ``scale_views``, evenly spread."""
+    """The paired views that measure the trajectory's scale: every one with scale_mode "lk" (a few corners
+    each), else up to ``scale_views`` (their rig pairs matched again with SGBM), evenly spread."""
+    if motion.scale_mode == "lk":
+        return set(todo)
     n = min(motion.scale_views, len(todo))
     if n <= 0:
         return set()

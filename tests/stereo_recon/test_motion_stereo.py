@@ -17,7 +17,7 @@ from stereo_recon.disparity import preset  # noqa: E402
 from stereo_recon.core.errors import ConfigError  # noqa: E402
 from stereo_recon.disparity import depth_from_disparity, disparity_map  # noqa: E402
 from stereo_recon.motion_stereo import (MotionStereoConfig, motion_depth, partner_ok, rectify_motion_pair,  # noqa: E402
-                                        rig_depth_for_scale)
+                                        rig_depth_for_scale, sparse_rig_ratios)
 from stereo_recon.stages.motion import rig_scale, scale_view_indices  # noqa: E402
 
 W, H, F = 640, 360, 500.0
@@ -97,6 +97,47 @@ def test_a_short_step_shows_in_the_rig_ratio(short):
     assert abs(counts["rig_ratio_median"] - 1) <= MotionStereoConfig().max_rescale
 
 
+def _far_views(z0: float, centres, seed: int = 0, noise: float = 2.0):
+    """A textured slanted plane z0 m away (camera a's frame) seen from camera a and from cameras at the given
+    centres (same orientation, m): their images (uint8, pixel noise noise DN) and a's exact depth (m)."""
+    rng = np.random.default_rng(seed)
+    tex = cv2.GaussianBlur(rng.normal(size=(H, W)).astype(np.float32), (0, 0), 1.2)
+    img_a = np.clip(128 + 50 * tex / tex.std(), 0, 255).astype(np.float32)
+    n = np.array([-0.2, 0.25, 1.0])  # n . X = z0: farther up the image, like a far view's ground
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T
+    depth_a = (z0 / (rays @ n)).astype(np.float32)
+    out = []
+    for c in centres:
+        Hab = K @ (np.eye(3) + np.outer(-np.asarray(c, float), n) / z0) @ np.linalg.inv(K)
+        img = cv2.warpPerspective(img_a, Hab, (W, H), flags=cv2.INTER_CUBIC)
+        out.append(np.clip(img + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8))
+    img_a = np.clip(img_a + rng.normal(0, noise, img_a.shape), 0, 255).astype(np.uint8)
+    return img_a, out, depth_a
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tracked_corners_measure_a_far_scenes_scale(seed):
+    """A far view (the rig's disparity 2.4-4 px, as a full-scale orbit's): odometry's step 3 % long shows as
+    a rig/wide ratio of 1/1.03 within 0.2 % from the tracked corners (``sparse_rig_ratios``), which have no
+    pull towards whole pixels."""
+    z0, baseline, step = 20.0, RIG_FB / F, 2.2
+    img_a, (right, img_b), depth_a = _far_views(z0, [(baseline, 0, 0), (step, 0, 0)], seed)
+    T_b_long = _pose(np.eye(3), [1.03 * step, 0, 0])
+    ratios = sparse_rig_ratios(img_a, right, img_b, K, np.eye(4), T_b_long, RIG_FB, depth_a * 1.02,
+                               MotionStereoConfig())
+    assert len(ratios) > 300
+    assert np.median(ratios) * 1.03 == pytest.approx(1.0, abs=0.002)
+
+
+def test_tracked_corners_need_a_textured_view():
+    """A plain view gives no corners, hence no ratio (the run then uses the other views)."""
+    flat = np.full((H, W), 120, np.uint8)
+    ratios = sparse_rig_ratios(flat, flat, flat, K, np.eye(4), _pose(np.eye(3), [2.0, 0, 0]), RIG_FB,
+                               np.full((H, W), 20.0, np.float32), MotionStereoConfig())
+    assert len(ratios) == 0
+
+
 def test_partner_choice():
     cfg = MotionStereoConfig(baseline_rel=0.1, max_rotation_deg=20)
     T_a = np.eye(4)
@@ -141,7 +182,7 @@ def test_rematched_rig_depth_of_weak_ground_is_not_far():
     for seed in range(3):
         left, right, d = _weak_ground_pair(seed)
         z3 = depth_from_disparity(disparity_map(left, right, cfg), fb, 1.0, 1e-3, 1e6)
-        z8 = rig_depth_for_scale(left, right, z3, cfg, MotionStereoConfig(), fb)
+        z8 = rig_depth_for_scale(left, right, z3, cfg, MotionStereoConfig(scale_mode="hh"), fb)
         ok = np.isfinite(z3) & np.isfinite(z8)
         ok[:, :80] = False  # the band the right eye does not see
         assert ok.mean() > 0.6
@@ -159,8 +200,10 @@ def test_rig_scale_takes_the_rematched_views_when_there_are_enough():
     # Fewer than 3 re-matched views: every pair's fused-depth ratio, as before.
     assert rig_scale(counts[2:], cfg) == pytest.approx(1.005)
     assert rig_scale(counts, MotionStereoConfig(rescale_trajectory=False)) is None
-    assert scale_view_indices(list(range(20, 40)), cfg) == {20, 23, 25, 28, 31, 34, 36, 39}
-    assert scale_view_indices([5, 6], cfg) == {5, 6} and scale_view_indices([5, 6], MotionStereoConfig(scale_views=0)) == set()
+    assert scale_view_indices(list(range(20, 40)), cfg) == set(range(20, 40))   # "lk": every paired view
+    hh = MotionStereoConfig(scale_mode="hh")
+    assert scale_view_indices(list(range(20, 40)), hh) == {20, 23, 25, 28, 31, 34, 36, 39}
+    assert scale_view_indices([5, 6], hh) == {5, 6} and scale_view_indices([5, 6], MotionStereoConfig(scale_mode="hh", scale_views=0)) == set()
 
 
 def test_motion_stereo_needs_streaming_poses():
