@@ -267,11 +267,12 @@ def sparse_rig_ratios(gray_a: np.ndarray, gray_a_right: np.ndarray, gray_b: np.n
     good &= good_b & front
     if good.sum() < config.scale_min_corners:
         return np.zeros(0)
-    P_a = K @ np.linalg.inv(T_a)[:3]
+    T_aw = np.linalg.inv(T_a)
+    P_a = K @ T_aw[:3]
     P_b = K @ np.linalg.inv(T_b)[:3]
     X = cv2.triangulatePoints(P_a, P_b, p[good, 0].T.astype(np.float64), q_b[good].T)
     X = X[:3] / X[3]
-    z_wide = (np.linalg.inv(T_a)[:3, :3] @ X + np.linalg.inv(T_a)[:3, 3:4])[2]
+    z_wide = (T_aw[:3, :3] @ X + T_aw[:3, 3:4])[2]
     xb_hat = P_b @ np.vstack([X, np.ones(X.shape[1])])
     reproj = np.linalg.norm((xb_hat[:2] / xb_hat[2]).T - q_b[good], axis=1)
     keep = (z_wide > 0) & (reproj < 1.0)
