@@ -36,15 +36,14 @@ def wide_view(idx: int, j: int, T_a: np.ndarray, T_b: np.ndarray, setup: Setup, 
     rig_depth = np.load(work / "depth" / f"{idx:06d}.npy")
     fb = setup.focal_px * setup.baseline_m
     right = work / "right" / f"{idx:06d}.png"
+    right_gray = cv2.imread(str(right), cv2.IMREAD_GRAYSCALE) if for_scale and right.is_file() else None
     scale_depth = None
-    if for_scale and right.is_file() and motion.scale_mode != "lk":
-        scale_depth = rig_depth_for_scale(gray, cv2.imread(str(right), cv2.IMREAD_GRAYSCALE), rig_depth,
-                                          setup.disparity, motion, fb)
+    if right_gray is not None and motion.scale_mode != "lk":
+        scale_depth = rig_depth_for_scale(gray, right_gray, rig_depth, setup.disparity, motion, fb)
     z, mc = motion_depth(gray, partner, rig_depth, pair, setup.disparity, motion, fb, plan.fusion.depth_max_m,
                          scale_depth_a_m=scale_depth)
-    if for_scale and right.is_file() and motion.scale_mode == "lk":
-        ratios = sparse_rig_ratios(gray, cv2.imread(str(right), cv2.IMREAD_GRAYSCALE), partner, setup.K, T_a, T_b, fb,
-                                   rig_depth, motion)
+    if right_gray is not None and motion.scale_mode == "lk":
+        ratios = sparse_rig_ratios(gray, right_gray, partner, setup.K, T_a, T_b, fb, rig_depth, motion)
         mc["rig_scale_corners"] = float(len(ratios))
         if len(ratios) >= motion.scale_min_corners:
             mc["rig_scale_ratio_median"] = float(np.median(ratios))
