@@ -54,6 +54,17 @@ class DimensionConfig:
                                        # -> -12.5 %, +0.6 -> -6.9 %); 20 Table 2 clouds unchanged
     roof_min_fraction: float = 0.01    # a roof level holds at least this share of the truck's points
     roof_min_points: int = 20
+    roof_cells_quantile: float | None = 0.9  # a roof read low where it sags (a plain roof seen at a grazing angle
+                                       # from far: SGBM places it ~1 px towards the background) is not
+                                       # level: its upward-facing points' medians per cell of 10 spacings
+                                       # spread far beyond their own standard error. The uncertainty of a
+                                       # height read at the roof level then spans the level of this
+                                       # quantile of the cells (the roof's highest stretch, at 1 sigma, as
+                                       # the gap to the top), and, once that stands more than the ground's
+                                       # noise above the level, the gap to the top 0.5 % of the points
+                                       # whatever its size. On the rig-only far roof of tuning seed 2029/6
+                                       # (-14 %), 3 mm -> 43 mm; README, issue 12's twenty-ninth round.
+                                       # None: off
     top_above_roof_sigmas: float | None = None  # read the height from the top 0.5 % of the truck's points, not
                                        # the densest roof level, when they lie more than this many of the
                                        # roof's own noise sigmas above it (``_roof_noise``; a flat roof's
@@ -75,6 +86,16 @@ class DimensionConfig:
                                        # (flatbeds -10.1 -> -3.6 % and -7.1 -> -0.2 %, a tanker -4.3 -> -0.6 %,
                                        # a box -5.8 -> -2.2 %; two boxes 0.0 -> +1.2 %); 20 Table 2 clouds
                                        # 0.723 -> 0.719 % (truck 5's width -2.5 -> +2.3 %)
+    end_facing_cos: float | None = 0.7  # each end of the length moves in to its own face when the face lies
+                                       # inside the end's peak of all points by more than the blur
+                                       # (hypot(noise, bandwidth)): the outermost density peak, of at least
+                                       # half the highest, of the points facing along the length (|normal .
+                                       # u_1| >= this) within the end window inside that end. A plain box's
+                                       # roof and walls seen from far smear past its faces along the rays
+                                       # and their points, not the faces', make the outermost peak of all
+                                       # points (seed 21 draw 0, a 7.6 m box from 20 m: L +5.3 %). The
+                                       # length's uncertainty spans both readings. None: off (the paper).
+                                       # Measured: README, issue 12's twenty-ninth round
     wall_facing_cos: float | None = 0.7  # each side wall is placed at the density peak of the sideways-facing
                                        # points (|normal . u_2| >= this, 45 deg) found up to 2.5 noise
                                        # sigmas outwards of the wall's peak of all points; None: the peak
@@ -349,6 +370,52 @@ def _slice_outer_peak(x: np.ndarray, h: float) -> float:
     d = binned_kde(x, bandwidth_m=h, step_m=h / 4)
     pk = local_maxima(d.density, 0.3)
     return refine_peak(d.grid_m, d.density, int(pk[-1])) if len(pk) else float("nan")
+
+
+def face_end(x_face: np.ndarray, e: float, side: int, win: float, h: float, min_points: int = 30) -> float | None:
+    """Where an end face lies (m): the outermost density peak, of at least half the highest, of the points
+    facing along the axis that lie from win (m) inside the end e (m) to 2 h outside it.
+
+    x_face: the facing points' positions on the axis (m); side: +1 for the end at larger positions, -1 for
+    the other; h: kernel bandwidth (m). None with fewer than min_points facing points there.
+    """
+    rel = side * (np.asarray(x_face, dtype=np.float64) - e)        # outwards positive
+    sel = rel[(rel >= -win) & (rel <= 2 * h)]
+    if len(sel) < min_points:
+        return None
+    d = binned_kde(sel, bandwidth_m=h, step_m=h / 4)
+    pk = local_maxima(d.density, 0.5)
+    if not len(pk):
+        return None
+    return float(e + side * refine_peak(d.grid_m, d.density, int(pk[-1])))
+
+
+def _face_length(out: dict, ends: dict, x: np.ndarray, facing: np.ndarray, h: float, noise: float, extent: float,
+                 cfg: DimensionConfig) -> None:
+    """Move both ends of the length in to their own faces (``face_end``) where each lies inside its end's
+    peak of all points by more than the blur, hypot(noise, h) (m). x: the points' positions on the length
+    axis (m); facing: the points facing along it (mask); extent: the length's robust extent (m). The peaks'
+    reading becomes the other reading the uncertainty spans (``length_peaks_m``).
+
+    Both or neither: smear along the rays of an orbit reaches past both faces alike, while one face inside
+    its end's peak is the body's shape (a cab's windscreen behind its nose, a tank's rounded end). On the
+    27 clouds of tuning seed 2056, either end alone moved 15 of them (L mean |error| 1.16 -> 1.27 %, most
+    pulled 1-2 % short); both ends moved two, whose peaks were smear (+5.2, +2.8 %), as on seed 21's
+    draw 0 (+5.3 %).
+    """
+    blur = float(np.hypot(noise, h))
+    win = cfg.end_window * extent + 2 * h
+    new = list(ends["length"])
+    for k, side in ((0, -1), (1, 1)):
+        f = face_end(x[facing], new[k], side, win, blur)
+        if f is None or side * (f - new[k]) >= -blur:
+            return
+        new[k] = f
+    if tuple(new) != tuple(ends["length"]):
+        out["length_peaks_m"] = out["length_m"]
+        out["length_peak_edges_m"] = tuple(ends["length"])
+        ends["length"] = (new[0], new[1])
+        out["length_m"] = float(new[1] - new[0])
 
 
 def width_profile(b: np.ndarray, z: np.ndarray, facing: np.ndarray, mid: float, h: float, top: float,
@@ -834,14 +901,41 @@ def _roof_noise(xyz: np.ndarray, level: float, top: float, res: float, h: float)
     return float(max(h, np.median(sig))) if sig else float(h)
 
 
+def roof_cells_level(xyz: np.ndarray, normal_z: np.ndarray, level: float, top: float, res: float, h: float,
+                     facing_cos: float, quantile: float) -> float | None:
+    """How high the roof's upper stretch lies (m): the quantile over xy cells (10 point spacings) of the
+    median height of the upward-facing points near the roof level.
+
+    xyz: truck points in the ground frame (m); normal_z: their normals' z; level, top: the roof level's and
+    the top 0.5 %'s heights (m); res: point spacing (m); h: the height kernel's bandwidth (m); points count
+    within max(top - level, 3 h) of the level with |normal_z| >= facing_cos. A level roof's cells agree to
+    within their standard error (mm); a sagging or warped one's spread by cm, the level read on its
+    lower part. None with fewer than 10 cells of 8 such points.
+    """
+    w = max(top - level, 3 * h)
+    p = xyz[(np.abs(normal_z) >= facing_cos) & (np.abs(xyz[:, 2] - level) <= w)]
+    if len(p) < 80:
+        return None
+    cell = np.floor(p[:, :2] / (10 * res)).astype(np.int64)
+    _, inv, cnt = np.unique(cell, axis=0, return_inverse=True, return_counts=True)
+    order = np.argsort(inv.ravel(), kind="stable")
+    z = p[order, 2]
+    starts = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    med = [np.median(z[s0:s0 + c]) for s0, c in zip(starts, cnt) if c >= 8]
+    return float(np.quantile(med, quantile)) if len(med) >= 10 else None
+
+
 def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: float, roof_support: float,
                    hz: float, values: dict, width_walls: float | None, height_top: float,
-                   height_roof: float) -> tuple[dict, list[str]]:
+                   height_roof: float, roof_cells: float | None = None,
+                   length_peaks: float | None = None) -> tuple[dict, list[str]]:
     """Standard uncertainties (m) per dimension and the warnings: bootstrap spread, plus half the spacing at
     each edge, plus the noise for an edge taken from an extreme (extremes are pushed outwards by noise),
     plus the gap to a second reading the data allow: half the gap to the side walls' own width (width_walls,
     m) when the width came from a shoulder; the whole gap between the roof level (height_roof, m) and the top
-    0.5 % of the points (height_top, m) when they lie apart by more than the roof's noise."""
+    0.5 % of the points (height_top, m) when they lie apart by more than the ground's noise (3 hz), or, when
+    larger, between a height read at the roof level and the roof's upper stretch (roof_cells, m:
+    ``roof_cells_level``)."""
     unc = {}
     for name in ("length", "width"):
         n_extreme = _EXTREME_EDGES[rules[name]]
@@ -869,8 +963,23 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
     # 2 sigma (tankers read 5-27 % low, their top 1-6 % low); with the gap at 1 sigma 94.0 % of the
     # heights hold the truth inside 2 sigma instead of 87.5 %.
     above = height_top - height_roof
-    if above > 3 * hz:  # a flat roof's own noise puts its top 0.5 % 2-2.6 noise sigmas above its level
-        unc["height"] = float(np.hypot(unc["height"], above))
+    # A roof that is not level (a plain roof seen at a grazing angle from far sags where its depth is worst)
+    # has its level on its lower part: its upper stretch is the other reading, at 1 sigma as the top's.
+    # Its noise does not explain the spread: per cell the medians' standard errors are ~1 mm.
+    # Such a roof's noise no longer explains the points above its level either (3 hz assumes a level roof):
+    # the gap to the top 0.5 % counts as soon as the cells' upper stretch stands out of the noise (hz).
+    sag = 0.0
+    if roof_cells is not None and rules["height"] in ("roof_peak", "roof_peak_highest_stretch"):
+        sag = max(roof_cells - values["height"], 0.0)
+    top_counts = above > 3 * hz or sag > hz
+    gap = max(above if top_counts else 0.0, sag)
+    if gap > 0:
+        unc["height"] = float(np.hypot(unc["height"], gap))
+    if sag > hz:
+        warnings.append(f"roof not level: its upper stretches lie {sag:.3g} m above the height read at its "
+                        f"level, {values['height']:.3g} m (a sagging roof's depth or a tilted ground fit; the uncertainty spans them "
+                        f"and the top 0.5 % of the points, at {height_top:.3g} m)")
+    elif above > 3 * hz:  # a flat roof's own noise puts its top 0.5 % 2-2.6 noise sigmas above its level
         if above > 0.01 * values["height"]:
             if rules["height"] in ("top_quantile_99.5", "rounded_top_99.5", "dark_top_99.5"):
                 what = {"rounded_top_99.5": "a rounded top's points (a crest, no roof level)",
@@ -880,6 +989,12 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
             else:
                 warnings.append(f"height {values['height']:.3g} m from the roof level; 0.5 % of the truck's points reach "
                                 f"{height_top:.3g} m (the uncertainty covers both)")
+    if length_peaks is not None:
+        # The end faces' own points against all points' peaks: smear past a face along the rays, or a part
+        # beyond it that does not face along the length; the data do not say which (+-2 sigma).
+        unc["length"] = float(np.hypot(unc["length"], abs(values["length"] - length_peaks) / 2))
+        warnings.append(f"length {values['length']:.3g} m between the end faces' own points; the density peaks of all points "
+                        f"are {length_peaks:.3g} m apart (the uncertainty covers both)")
     if width_walls is not None:
         # Which reading is the truck's is not decided by the data (a cab or deck wider than the box, or a
         # tail of stray points outside plain walls; a rounded flank's widest line, or a flat wall's
@@ -907,7 +1022,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     xy = xyz[:, :2]
     z = xyz[:, 2]
     normals = None
-    if config.wall_facing_cos is not None or config.roof_facing_cos is not None or config.heading_wall_max_nz is not None:
+    if (config.wall_facing_cos is not None or config.roof_facing_cos is not None or config.heading_wall_max_nz is not None
+            or config.end_facing_cos is not None):
         normals = point_normals(xyz, config.normal_neighbours)
     walls = None if config.heading_wall_max_nz is None else np.abs(normals[:, 2]) < config.heading_wall_max_nz
     c0, u_pca, u1, u2, turn_deg = _ground_axes(xy, resolution_m, walls)
@@ -952,6 +1068,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
                 flank_profile = (zs, widths)
                 if config.curved_flank_min_drop is not None:
                     _curved_flank(out, rules, ends, zs, widths, top, config)
+    out["length_peaks_m"] = None
+    if config.end_facing_cos is not None and normals is not None:
+        along = np.abs(normals[:, :2] @ u1) >= config.end_facing_cos
+        lo_a, hi_a = np.quantile(a, [config.extreme_fraction, 1 - config.extreme_fraction])
+        _face_length(out, ends, a, along, bw["length"], noise_m, float(hi_a - lo_a), config)
     plateau = config.wall_plateau_slices is not None and flank_profile is not None   # the walls read from that profile
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)
@@ -990,6 +1111,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)
         if out["height_top_m"] - height > config.top_above_roof_sigmas * roof_sigma:
             height, hrule = out["height_top_m"], "top_quantile_99.5"
+    roof_cells = None
+    if config.roof_cells_quantile is not None and normals is not None and hrule in ("roof_peak", "roof_peak_highest_stretch"):
+        roof_cells = roof_cells_level(xyz, normals[:, 2], float(height), top, res, hz,
+                                      config.roof_facing_cos if config.roof_facing_cos is not None else 0.7, config.roof_cells_quantile)
+    out["height_roof_cells_m"] = roof_cells
     out["height_m"] = float(height)
     out["body_brightness"] = body_brightness
     rules["height"] = hrule
@@ -997,8 +1123,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     bw_rules["height"] = "max(ground_rms, half_spacing)"
     dens_out["height"] = {"grid_m": hgrid, "density": hdens}
     unc, warnings = _uncertainties(rules, bw, boots, res, noise_m, roof_support, hz,
-                                   {"width": out["width_m"], "height": out["height_m"]}, out["width_walls_m"], out["height_top_m"],
-                                   out["height_roof_m"])
+                                   {"length": out["length_m"], "width": out["width_m"], "height": out["height_m"]},
+                                   out["width_walls_m"], out["height_top_m"], out["height_roof_m"], roof_cells, out["length_peaks_m"])
     out["warnings"] = warnings
     out["roof_support"] = roof_support
     out["uncertainty_m"] = unc

@@ -94,7 +94,12 @@ class MeasureConfig:
     top_above_roof_sigmas: float | None = None  # height from the top 0.5 % of the points when they lie this many
                                                 # noise sigmas over the roof level (None: the roof level, as the
                                                 # paper; see measure.dimensions.DimensionConfig)
+    roof_cells_quantile: float | None = 0.9     # a height read at the roof level spans its upper stretch: this quantile
+                                                # of its cells' median levels (None: off; see DimensionConfig)
     wall_min_share: float = 0.85
+    end_facing_cos: float | None = 0.7       # each end of the length moved in to its own face's points when the
+                                             # peak of all points lies beyond it (None: the paper's peaks; see
+                                             # measure.dimensions.DimensionConfig)
     wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see
@@ -152,7 +157,9 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
         v = int(v) if want_int else float(v)
         if not np.isfinite(v) or (v < 0) or (v == 0 and k not in ("seed", "bootstrap") and not isinstance(d, int)):
             raise ConfigError(f"{where}: {k} must be a positive number, got {v!r}")
-        if k in ("wall_facing_cos", "roof_facing_cos") and v > 1:  # above 1 no point faces: the paper's reading unasked
+        if k == "roof_cells_quantile" and v > 1:
+            raise ConfigError(f"{where}: {k} is a quantile, at most 1, got {v!r}")
+        if k in ("wall_facing_cos", "roof_facing_cos", "end_facing_cos") and v > 1:  # above 1 no point faces: the paper's reading unasked
             raise ConfigError(f"{where}: {k} is a cosine, at most 1 (null for the paper's peaks of all points), got {v!r}")
         kw[k] = v
     return MeasureConfig(**kw)
@@ -210,8 +217,10 @@ class Measurement:
             # the width came from a shoulder or a rounded flank's widest height, else null; the roof level's
             # and the top 0.5 % of the truck's points' heights (the height is one of them, see rules.height).
             "width_walls_m": self.details.get("width_walls_m"),
+            "length_peaks_m": self.details.get("length_peaks_m"),
             "height_top_m": self.details.get("height_top_m"),
             "height_roof_m": self.details.get("height_roof_m"),
+            "height_roof_cells_m": self.details.get("height_roof_cells_m"),
             "rounded_top_drop": self.details.get("rounded_top_drop"),
             "body_brightness": self.details.get("body_brightness"),
             "bootstrap_std_m": self.details.get("bootstrap_std_m"),

@@ -145,9 +145,13 @@ class _StreamPass:
             self.view_depths_m.append(med)
 
     def switch_far_scene(self) -> None:
-        """Far scene: motion stereo and dense-depth VO from here on (decided on the first view's depth)."""
+        """Far scene: motion stereo and dense-depth VO from here on (decided on the first view's depth).
+
+        The first view's disparity is recorded whether or not far scenes are switched on: the depth term of
+        the uncertainty (``stereo_recon.app.uncertainty``) reads the working distance from it."""
         med = self.depth_by_view.get(self.keyframes[0], float("nan"))
-        decision = far_scene(med, self.s.focal_px, self.s.baseline_m, self.c.far_scene_depth_baselines)
+        threshold = self.c.far_scene_depth_baselines
+        decision = far_scene(med, self.s.focal_px, self.s.baseline_m, float("inf") if threshold is None else threshold)
         if decision is None:
             return
         counts = self.ctx.counts
@@ -201,7 +205,7 @@ class _StreamPass:
             with ctx.clock.stage("wait_depth"):
                 self.collect(self.pending)
             self.pending = None
-            if self.c.far_scene_depth_baselines is not None and self.s.mode in ("vo", "gt"):
+            if self.s.mode in ("vo", "gt"):
                 self.switch_far_scene()
         with ctx.clock.stage("rectify"):
             # Colour is only needed for the left eye (fusion); the right eye is matched in grey.
