@@ -21,9 +21,13 @@ translation puts the ground at height 0, so z' is the height above the fitted gr
   its vertex is the width if wider (``curved_flank_min_drop``).
 - Length: the rear peak (the box's rear face: the end whose end-peak is higher) to the front.
   The front is the front face's peak when there is one at the front end, else the robust front
-  extreme (a rounded or sparse cab). Fallback: robust extent.
+  extreme (a rounded or sparse cab). Fallback: robust extent. When both ends' own facing points
+  peak inside those peaks by more than the blur, the ends move in to them (``end_facing_cos``: a
+  roof's and walls' smear past both faces along the rays).
 Every number records the rule that produced it, and an uncertainty from a Poisson bootstrap of
-the binned projections plus the point spacing and the noise measured on the ground.
+the binned projections plus the point spacing and the noise measured on the ground, plus the gap to
+a second reading the data allow (the walls' own width, the top of the points, a roof's upper
+stretch where it is not level: ``roof_cells_quantile``, the ends' peaks of all points).
 """
 
 from __future__ import annotations
