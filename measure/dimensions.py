@@ -417,7 +417,6 @@ def _face_length(out: dict, ends: dict, x: np.ndarray, facing: np.ndarray, h: fl
         new[k] = f
     if tuple(new) != tuple(ends["length"]):
         out["length_peaks_m"] = out["length_m"]
-        out["length_peak_edges_m"] = tuple(ends["length"])
         ends["length"] = (new[0], new[1])
         out["length_m"] = float(new[1] - new[0])
 
