@@ -82,6 +82,10 @@ class MeasureConfig:
                                              # None: off). A user's --centre is judged by quality.check_centre instead
     merge_gap_res: float = 15.0              # clusters in line with the truck within this gap join it (a cab across
                                              # the gap to its box); 0 disables (the paper's single cluster)
+    end_scraps_min_height_rel: float | None = 0.1  # beyond either end, scraps within the truck's width join it while
+                                             # points reaching this x its height follow each other within the merge
+                                             # gap (a cab seen obliquely, in scraps; None: off; see
+                                             # measure.truck.join_end_scraps)
     opposite_side_max_offset_rel: float | None = 0.1  # with an orbit's centre as the hint lying beside the truck's parts,
                                              # the cluster across it that is the truck's other side joins them when
                                              # the two centre on the hint within this x their length (None: off;
@@ -314,7 +318,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     tvec = np.array([0.0, 0.0, g.plane.offset])
     xyz_g = above @ R.T + tvec     # Eqs. 5-6
     centre_xy = None if centre is None else (R @ centre + tvec)[:2]
-    truck, in_truck, filt, eps, cstats = _truck_points(above, xyz_g, centre_xy, cfg, res, timings, source)
+    truck, in_truck, filt, eps, cstats = _truck_points(above, xyz_g, centre_xy, cfg, res, timings, source, ground_m=g.d_h)
     # The noise that blurs the truck's own surfaces is the ground layer's where the truck stands: the
     # whole ground's RMS is dominated by far, noisier ground and would smooth the roof into the walls.
     noise_m = g.plane.rms_m
@@ -459,11 +463,12 @@ def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str)
 
 
 def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfig, res: float, timings: dict,
-                  source: str):
+                  source: str, ground_m: float = 0.0):
     """Algorithm 2 and the truck filters: (truck points in the ground frame, their mask over ``above``, the
     TruckFilter, ε in metres, cluster stats).
 
-    above: points above the ground (input frame); xyz_g: the same in the ground frame. Adds 'fof' and 'truck' to timings.
+    above: points above the ground (input frame); xyz_g: the same in the ground frame; ground_m: the ground's removal
+    thickness d_h (m; scraps of ground stand up to about twice it). Adds 'fof' and 'truck' to timings.
     With a centre hint (the orbit's centre) and no truck-like cluster at it, the clustering is repeated at 2, 4, ...
     x ε up to ``eps_retry_max``: a large truck's plain walls reconstructed in patches fall apart at the ε of its
     point spacing (on tuning seed 2051 a clean full-scale semi-trailer came out as 3274 clusters, the longest 3.6 m
@@ -477,7 +482,7 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
 
     eps = cfg.eps_m or cfg.eps_res * res
     try:
-        truck, in_truck, filt, cstats = _truck_at(above, xyz_g, centre_xy, cfg, res, eps, timings, source)
+        truck, in_truck, filt, cstats = _truck_at(above, xyz_g, centre_xy, cfg, res, eps, timings, source, ground_m)
         cstats["eps_factor"] = 1.0
         return truck, in_truck, filt, eps, cstats
     except NoTruckError as err:
@@ -489,7 +494,7 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
     while factor <= cfg.eps_retry_max:
         tried.append(factor)
         try:
-            found.append((factor, _truck_at(above, xyz_g, centre_xy, cfg, res, eps * factor, timings, source)))
+            found.append((factor, _truck_at(above, xyz_g, centre_xy, cfg, res, eps * factor, timings, source, ground_m)))
         except StageError:
             pass   # none at the hint, or two covering it: one truck's halves cut lengthwise, vehicles do not overlap
         factor *= 2
@@ -506,10 +511,11 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
 
 
 def _truck_at(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfig, res: float, eps: float,
-              timings: dict, source: str):
+              timings: dict, source: str, ground_m: float = 0.0):
     """FoF at ε = eps (m), the truck filters and the selection: (truck points, mask over ``above``, filter, stats)."""
     from measure.fof import fof_clusters
-    from measure.truck import TruckFilter, check_hint_distance, join_opposite_side, merge_truck_parts, select_truck
+    from measure.truck import (TruckFilter, check_hint_distance, join_end_scraps, join_opposite_side, merge_truck_parts,
+                               select_truck)
 
     t = time.perf_counter()
     labels = fof_clusters(above, eps)
@@ -536,10 +542,18 @@ def _truck_at(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfi
             joined = join_opposite_side(xyz_g, labels, parts, centre_xy, part_min_points, cfg.opposite_side_max_offset_rel)
             cstats["opposite_side_labels"] = sorted(set(joined) - set(parts))
             parts = joined
-        cstats["merged_labels"] = parts
         in_truck = np.isin(labels, parts)
         if centre_xy is not None and cfg.max_hint_distance_rel is not None:
             cstats["hint_distance_m"] = check_hint_distance(xyz_g[in_truck], centre_xy, cfg.max_hint_distance_rel, source)
+        if cfg.merge_gap_res > 0 and cfg.end_scraps_min_height_rel is not None:
+            # Only once a truck stands at the hint: scraps lengthen a truck found, they do not make one (a truck
+            # in patches is clustered again coarser instead, _truck_points).
+            joined = join_end_scraps(xyz_g, labels, parts, cfg.merge_gap_res * res, cfg.end_scraps_min_height_rel,
+                                     min_height_m=2 * ground_m)
+            cstats["end_scrap_labels"] = sorted(set(joined) - set(parts))
+            parts = joined
+            in_truck = np.isin(labels, parts)
+        cstats["merged_labels"] = parts
     finally:
         timings["truck"] = timings.get("truck", 0.0) + time.perf_counter() - t
     return xyz_g[in_truck], in_truck, filt, cstats
