@@ -226,30 +226,33 @@ def join_end_scraps(xyz_ground: np.ndarray, labels: np.ndarray, parts: list[int]
     u2 = np.array([-u1[1], u1[0]])
     a, b = pts[:, :2] @ u1, pts[:, :2] @ u2
     A0, A1, B0, B1, H = a.min(), a.max(), b.min(), b.max(), pts[:, 2].max()
-    out = ~in_truck
     qa, qb = xyz_ground[:, :2] @ u1, xyz_ground[:, :2] @ u2
-    band = out & (qb >= B0) & (qb <= B1)
+    band = ~in_truck & (qb >= B0) & (qb <= B1)
     floor = max(min_height_rel * H, min_height_m)
     high = band & (xyz_ground[:, 2] >= floor)
-    lo, hi = A0, A1
-    ahead = np.sort(qa[high & (qa > A1)])
-    steps = np.diff(np.r_[A1, ahead])
-    hole = np.flatnonzero(steps > gap_m)
-    hi = ahead[hole[0] - 1] if len(hole) and hole[0] > 0 else (ahead[-1] if len(ahead) and not len(hole) else A1)
-    behind = -np.sort(-qa[high & (qa < A0)])
-    steps = np.diff(np.r_[A0, behind]) * -1
-    hole = np.flatnonzero(steps > gap_m)
-    lo = behind[hole[0] - 1] if len(hole) and hole[0] > 0 else (behind[-1] if len(behind) and not len(hole) else A0)
-    if lo == A0 and hi == A1:
+    ahead, behind = qa - A1, A0 - qa   # beyond the front, beyond the rear (m)
+    reach_ahead = _chain_reach(ahead[high & (ahead > 0)], gap_m)
+    reach_behind = _chain_reach(behind[high & (behind > 0)], gap_m)
+    if reach_ahead == 0 and reach_behind == 0:
         return sorted(parts)
-    inside = band & (((qa >= lo) & (qa < A0)) | ((qa > A1) & (qa <= hi)))
+    inside = band & (((ahead > 0) & (ahead <= reach_ahead)) | ((behind > 0) & (behind <= reach_behind)))
     labs, n_in = np.unique(labels[inside], return_counts=True)
-    n_all = np.bincount(labels[labels >= 0], minlength=int(labels.max()) + 1) if len(labels) else np.zeros(0, int)
+    named = labels >= 0
+    n_all = np.bincount(labels[named], minlength=int(labels.max()) + 1)
     tops = np.full(len(n_all), -np.inf)
-    np.maximum.at(tops, labels[labels >= 0], xyz_ground[labels >= 0, 2])
+    np.maximum.at(tops, labels[named], xyz_ground[named, 2])
     joined = [int(lab) for lab, k in zip(labs, n_in)
               if lab >= 0 and k >= min_share_inside * n_all[lab] and tops[lab] >= floor]
     return sorted({*parts, *joined})
+
+
+def _chain_reach(dist_m: np.ndarray, gap_m: float) -> float:
+    """How far (m) a chain of points reaches from 0 outwards, each within gap_m of the one before: the largest of
+    ``dist_m`` (distances >= 0, any order) before the first hole wider than gap_m; 0 when the nearest lies beyond it."""
+    d = np.sort(dist_m)
+    hole = np.flatnonzero(np.diff(np.r_[0.0, d]) > gap_m)
+    n = hole[0] if len(hole) else len(d)
+    return float(d[n - 1]) if n else 0.0
 
 
 def join_opposite_side(xyz_ground: np.ndarray, labels: np.ndarray, parts: list[int], centre_hint_xy: np.ndarray,
