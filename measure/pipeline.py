@@ -101,6 +101,10 @@ class MeasureConfig:
     roof_cells_quantile: float | None = 0.9     # a height read at the roof level spans its upper stretch: this quantile
                                                 # of its cells' median levels (None: off; see DimensionConfig)
     wall_min_share: float = 0.85
+    shoulder_doubt_excess: float | None = 1.0  # a side's points outside its wall, more than the wall's scatter puts there
+                                             # but too few for a shoulder: the width with them is a reading the
+                                             # uncertainty spans (None: off; see measure.dimensions.DimensionConfig)
+    shoulder_pair: bool = True               # ... taken as a shoulder when the other side's passed (a truck is symmetric)
     end_facing_cos: float | None = 0.7       # each end of the length moved in to its own face's points when the
                                              # peak of all points lies beyond it (None: the paper's peaks; see
                                              # measure.dimensions.DimensionConfig)
@@ -221,6 +225,9 @@ class Measurement:
             # the width came from a shoulder or a rounded flank's widest height, else null; the roof level's
             # and the top 0.5 % of the truck's points' heights (the height is one of them, see rules.height).
             "width_walls_m": self.details.get("width_walls_m"),
+            # The width with a side's doubtful shoulder (more points outside a wall than its scatter puts there,
+            # too few to pass for a wider part), when the width is the walls' own, else null.
+            "width_shoulder_m": self.details.get("width_shoulder_m"),
             "length_peaks_m": self.details.get("length_peaks_m"),
             "height_top_m": self.details.get("height_top_m"),
             "height_roof_m": self.details.get("height_roof_m"),
