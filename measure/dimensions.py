@@ -107,6 +107,13 @@ class DimensionConfig:
                                        # one shoulder a fringe). Both, re-measured on 152 tuning clouds
                                        # (seeds 2056-2060): width mean 2.27 -> 2.19 %, p90 5.16 -> 4.81 %,
                                        # inside +-2 sigma 96.1 -> 97.4 %, verdicts 59 -> 61 of 67 right
+    shoulder_fringe_height: float | None = 0.75  # a side whose outside points lie mostly (over half) at or above
+                                       # this share of the top is a fringe hanging from an occluding top edge,
+                                       # not a wider part: at most a doubtful shoulder (the uncertainty spans
+                                       # it), never taken, never pairing the other side. Why: SGBM fattens a
+                                       # roof's far edge over the ground beyond it by a few pixels, which
+                                       # fuses into a band outside the far wall just under the roof (a deck
+                                       # or a cab beside the walls stands low). None: off
     end_facing_cos: float | None = 0.7  # each end of the length moves in to its own face when the face lies
                                        # inside the end's peak of all points by more than the blur
                                        # (hypot(noise, bandwidth)): the outermost density peak, of at least
@@ -331,11 +338,13 @@ def _outer_peak(grid, dens_facing, e: float, w: float, side: int) -> float:
     return e if i in (i0, i1) else refine_peak(grid, dens_facing, i)
 
 
-def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0, side_counts=None, extent_counts=None):
+def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0, side_counts=None, extent_counts=None,
+                upper_counts=None):
     """Width from the width projection's histogram counts (see the module docstring); side_counts: the
     same of the sideways-facing points, which place the walls (None: the peaks of all points);
     extent_counts: the same of the points above the ground's skirt, which give the extent the walls must
-    span and bound a shoulder (``width_min_height``; None: all points)."""
+    span and bound a shoulder (``width_min_height``; None: all points); upper_counts: the same of the
+    points near the top, which tell a fringe from a shoulder (``shoulder_fringe_height``; None: no test)."""
     dens = smooth_counts(counts, step, h)
     pos = _wall_peaks(counts, grid, dens, h, step, cfg)
     ext = counts if extent_counts is None else extent_counts
@@ -368,18 +377,24 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
         bounded = extent_counts is not None   # a shoulder lies within the extent above the skirt
         # Per side (-1: the low one, +1: the high one): the excess of points beyond the wall's reach over
         # what the wall's own scatter puts there (0 when too few points or none beyond the reach).
-        excess = {}
-        for side, e, out_m, far in ((-1, e0, out_lo, lo < e0 - d), (+1, e1, out_hi, hi > e1 + d)):
+        # A fringe: a side whose outside points lie mostly near the top (shoulder_fringe_height).
+        excess, fringe = {}, set()
+        up_cdf = None if upper_counts is None else np.cumsum(upper_counts)
+        for side, e, out_m, far, band in ((-1, e0, out_lo, lo < e0 - d, (lo, e0 - d)), (+1, e1, out_hi, hi > e1 + d, (e1 + d, hi))):
             tail = sh.wall_tail(e, side)
             excess[side] = out_m / max(tail, 1e-12) if out_m >= cfg.shoulder_min_mass and far else 0.0
-        sure = {s for s in excess if excess[s] > cfg.shoulder_excess}
+            if up_cdf is not None and excess[side] > 0:
+                up = float(np.interp(band[1], grid, up_cdf) - np.interp(band[0], grid, up_cdf))
+                if up > 0.5 * out_m * sh.tot:
+                    fringe.add(side)
+        sure = {s for s in excess if excess[s] > cfg.shoulder_excess} - fringe
         maybe = set()
         if cfg.shoulder_doubt_excess is not None:
-            maybe = {s for s in excess if cfg.shoulder_doubt_excess < excess[s] <= cfg.shoulder_excess}
-        if cfg.shoulder_pair and sure and maybe:
-            # The other side passed: a wider part on one side of a symmetric truck is on both.
-            sure |= maybe
-            maybe = set()
+            maybe = {s for s in excess if cfg.shoulder_doubt_excess < excess[s] and s not in sure}
+        if cfg.shoulder_pair and sure and maybe - fringe:
+            # The other side passed: a wider part on one side of a symmetric truck is on both (not a fringe).
+            sure |= maybe - fringe
+            maybe &= fringe
         edge = {-1: lambda: sh.edge(e0, -1, lo if bounded else None), +1: lambda: sh.edge(e1, +1, hi if bounded else None)}
         if +1 in sure:
             w1 = max(w1, edge[+1]())
@@ -884,7 +899,8 @@ def _bootstrap_counts(counts: np.ndarray, part: np.ndarray | None, n: int, rng) 
 
 
 def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, config: DimensionConfig, rng,
-                          side: np.ndarray | None = None, extent: np.ndarray | None = None) -> dict:
+                          side: np.ndarray | None = None, extent: np.ndarray | None = None,
+                          upper: np.ndarray | None = None) -> dict:
     """Length or width (name) from the points' projection x (m) on its axis: Eq. 8 bandwidth, the rule,
     and its Poisson-bootstrap spread. res: point spacing (m); rng: numpy Generator (drawn in order)."""
     span = float(x.max() - x.min())
@@ -903,8 +919,10 @@ def _projection_dimension(name: str, x: np.ndarray, res: float, noise_m: float, 
     if name == "width":
         side_counts = None if side is None else linear_binning(x[side], lo, step, n_bins)
         ext = None if extent is None else linear_binning(x[extent], lo, step, n_bins)
-        r = _width_rule(counts, grid, h, step, config, noise=noise_m, side_counts=side_counts, extent_counts=ext)
-        reps = [_width_rule(rc, grid, h, step, config, noise=noise_m, side_counts=rs, extent_counts=ext)[0]
+        ups = None if upper is None else linear_binning(x[upper], lo, step, n_bins)
+        r = _width_rule(counts, grid, h, step, config, noise=noise_m, side_counts=side_counts, extent_counts=ext,
+                        upper_counts=ups)
+        reps = [_width_rule(rc, grid, h, step, config, noise=noise_m, side_counts=rs, extent_counts=ext, upper_counts=ups)[0]
                 for rc, rs in _bootstrap_counts(counts, side_counts, config.bootstrap, rng)]
     else:
         r = _length_rule(counts, grid, h, step, config)
@@ -1052,7 +1070,7 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         unc["width"] = float(np.hypot(unc["width"], abs(width_shoulder - values["width"]) / 2))
         warnings.append(f"width {values['width']:.3g} m between the side walls; more points lie outside them than their "
                         f"scatter explains, and with them the width is {width_shoulder:.3g} m (a wider part such as a "
-                        f"deck, or a broader scatter; the uncertainty covers both)")
+                        f"deck, a fringe under the roof's edge, or a broader scatter; the uncertainty covers both)")
     return unc, warnings
 
 
@@ -1096,9 +1114,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         high = z >= config.width_min_height * top
         if high.sum() < max(200, len(z) // 4):   # too few points up there: all of them, as the paper
             high = None
+    # Points near the top tell a fringe hanging from a roof's edge from a wider part (shoulder_fringe_height).
+    upper = None if config.shoulder_fringe_height is None else z >= config.shoulder_fringe_height * top
     for name, x in (("width", b), ("length", a)):
         d = _projection_dimension(name, x, res, noise_m, config, rng, side=side if name == "width" else None,
-                                  extent=high if name == "width" else None)
+                                  extent=high if name == "width" else None, upper=upper if name == "width" else None)
         bw_rules[name] = d["bandwidth_rule"]
         boots[name] = d["boot"]
         out[f"{name}_m"] = d["value"]

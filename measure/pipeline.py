@@ -105,6 +105,9 @@ class MeasureConfig:
                                              # but too few for a shoulder: the width with them is a reading the
                                              # uncertainty spans (None: off; see measure.dimensions.DimensionConfig)
     shoulder_pair: bool = True               # ... taken as a shoulder when the other side's passed (a truck is symmetric)
+    shoulder_fringe_height: float | None = 0.75  # a side's outside points mostly at or above this share of the top
+                                             # are a fringe under the roof's edge: no shoulder, a reading the
+                                             # uncertainty spans (None: off; see DimensionConfig)
     end_facing_cos: float | None = 0.7       # each end of the length moved in to its own face's points when the
                                              # peak of all points lies beyond it (None: the paper's peaks; see
                                              # measure.dimensions.DimensionConfig)

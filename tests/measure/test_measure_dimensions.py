@@ -151,6 +151,33 @@ def test_a_shoulder_on_one_side_takes_the_doubtful_one_on_the_other():
             assert alone[5] is None and pair[0] == alone[0], (alone, pair)
 
 
+def test_a_fringe_under_the_roof_beside_a_wall_is_no_shoulder():
+    """A box whose far roof edge SGBM fattened over the ground beyond: a band 40 mm outside its right wall
+    just under the roof (0.8-0.95 of the top), 5 % of the points. As a shoulder it would widen the truck by
+    its band (and take a doubtful other side with it, the pair rule); lying mostly near the top it is a
+    fringe: the width stays the walls', and the width with the band is the other reading the uncertainty
+    spans. The same band low on the truck (a deck) is still a shoulder. (The peaks' rule alone: the walls'
+    height-profile plateau, which would read this box, is off.)"""
+    W, H = 0.38, 0.38
+    peaks = replace(DimensionConfig(), wall_plateau_slices=None)
+    rng = np.random.default_rng(7)
+    box = _truck(rng, W=W, H=H)
+    for z, fringe in (((0.8 * H, 0.95 * H), True), ((0.05 * H, 0.2 * H), False)):
+        band = _face(rng, int(0.05 * len(box)), (-1.0, 1.0), (W / 2 + 0.008, W / 2 + 0.04), z)
+        xyz = np.vstack([box, band]) + rng.normal(0.0, 0.003, (len(box) + len(band), 3))
+        m = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003, config=peaks)
+        off = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003, config=replace(peaks, shoulder_fringe_height=None))
+        assert off["rules"]["width"] == "kde_peaks_plus_outer_shoulder" and off["width_m"] > W + 0.025, off["width_m"]
+        if fringe:
+            # Measured: W -0.03 % (sigma 3.6 %), the other reading +7.0 %; without the test +7.0 % at 1.8 sigma.
+            assert m["rules"]["width"] == "kde_two_peaks" and abs(m["width_m"] / W - 1) < 0.02, (m["rules"], m["width_m"])
+            assert m["width_shoulder_m"] is not None and m["width_shoulder_m"] > W + 0.025, m["width_shoulder_m"]
+            assert abs(m["width_m"] - W) < m["uncertainty_m"]["width"], m["uncertainty_m"]
+            assert off["width_m"] / W - 1 > 0.06, off["width_m"]
+        else:
+            assert m["rules"]["width"] == "kde_peaks_plus_outer_shoulder" and m["width_m"] == off["width_m"], m["width_m"]
+
+
 def test_stray_points_outside_a_broad_wall_do_not_veto_the_walls():
     """A weakly seen side wall, broad (25 mm scatter) and 1.5 % of the points strayed up to 0.4 m outside it:
     the two walls must still count as walls (the 1 % quantile extent used to veto them, and the width
