@@ -136,6 +136,9 @@ class MeasureConfig:
     width_min_height: float | None = 0.15       # the width's extent judged from the points at or above this share of the
                                                 # top (the ground's skirt at the truck's foot left out; None: all points,
                                                 # as the paper; see measure.dimensions.DimensionConfig)
+    length_min_height: float | None = 0.15      # an end peak of the length beyond the extent of the points at or above
+                                                # this share of the top is the ground's skirt, no end (None: every
+                                                # peak, as the paper; see measure.dimensions.DimensionConfig)
     bootstrap: int = 30
     seed: int = 0
 
