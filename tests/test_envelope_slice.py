@@ -30,7 +30,10 @@ MAX_ABS_ERROR_PCT = 3.0
 # tank's widest height (ae49134, 2026-11-26): L -0.9, W -1.1 (the peaks: -3.1), H -2.7 %. Draw 0 (a full-scale 7.6 m
 # box seen from 20.5 m at 46 deg, plain paint, 1.9 % contrast, a shorter vehicle 1.8 W away: L +3.6, W +2.2, H +0.1 % on
 # 2026-11-24) meets them since its walls are read from their plateau (34b8a08, 2026-11-26): L +2.2, W +2.0 (the
-# peaks: +6.4), H -0.1 %, `undecided` (right: its truth lies within 2 sigma of a limit).
+# peaks: +6.4), H -0.1 %, `undecided` (right: its truth lies within 2 sigma of a limit). On an AMD EPYC machine
+# (2026-11-28) its cloud differs and read L +3.47 %: a skirt of ground points hovering past its black cab's face
+# made all points' front peak; since an end peak beyond the points above the skirt is no end (length_min_height,
+# 2026-11-29): L +1.04, W +2.70, H +0.49 % there.
 KNOWN_FAILURES: dict[int, str] = {}
 # Coverage was 3 of 9 on e875b61 (the bootstrap saw only the cloud's scatter); met since the depth term's k_px was
 # recalibrated on 83 tuning runs (2026-11-24, seed 21 not among them), which this strict check found.
