@@ -1096,6 +1096,15 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
     return unc, warnings
 
 
+def _above_skirt(z: np.ndarray, top: float, share: float | None) -> np.ndarray | None:
+    """The points at or above share x top (m) of the heights z (m), a mask; None when share is None or too
+    few points lie up there (then all of them count, as the paper)."""
+    if share is None:
+        return None
+    above = z >= share * top
+    return above if above.sum() >= max(200, len(z) // 4) else None
+
+
 def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.0, config: DimensionConfig = DimensionConfig(), rng=0,
                        body_brightness: float | None = None) -> dict:
     """Length, width, height of a truck from its points in the ground frame.
@@ -1131,17 +1140,9 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
             side = None
     # The width's extent (do its walls span the truck?) is judged above the low skirt of ground remnants fused
     # to the truck's foot (width_min_height).
-    high = None
-    if config.width_min_height is not None:
-        high = z >= config.width_min_height * top
-        if high.sum() < max(200, len(z) // 4):   # too few points up there: all of them, as the paper
-            high = None
+    high = _above_skirt(z, top, config.width_min_height)
     # The length's extent likewise, above the skirt at the truck's ends (length_min_height).
-    high_len = None
-    if config.length_min_height is not None:
-        high_len = z >= config.length_min_height * top
-        if high_len.sum() < max(200, len(z) // 4):
-            high_len = None
+    high_len = _above_skirt(z, top, config.length_min_height)
     # Points near the top tell a fringe hanging from a roof's edge from a wider part (shoulder_fringe_height).
     upper = None if config.shoulder_fringe_height is None else z >= config.shoulder_fringe_height * top
     for name, x in (("width", b), ("length", a)):
