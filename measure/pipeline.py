@@ -105,6 +105,8 @@ class MeasureConfig:
                                              # but too few for a shoulder: the width with them is a reading the
                                              # uncertainty spans (None: off; see measure.dimensions.DimensionConfig)
     shoulder_pair: bool = True               # ... taken as a shoulder when the other side's passed (a truck is symmetric)
+    shoulder_reach_own_flank: bool = True    # a shoulder looked for beyond the wall's own scatter where that is sharper
+                                             # than the ground's noise (False: the noise's reach; see DimensionConfig)
     shoulder_fringe_height: float | None = 0.75  # a side's outside points mostly at or above this share of the top
                                              # are a fringe under the roof's edge: no shoulder, a reading the
                                              # uncertainty spans (None: off; see DimensionConfig)
