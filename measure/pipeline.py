@@ -165,6 +165,11 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
                 raise ConfigError(f"{where}: {k} cannot be empty")
             kw[k] = None
             continue
+        if isinstance(d, bool):    # a switch: true or false, never a number
+            if not isinstance(v, bool):
+                raise ConfigError(f"{where}: {k} must be true or false, got {v!r}")
+            kw[k] = v
+            continue
         want_int = "int" in str(typ) and "float" not in str(typ)
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise ConfigError(f"{where}: {k} must be a number, got {v!r}")

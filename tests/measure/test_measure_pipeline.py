@@ -149,6 +149,11 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
     with pytest.raises(ConfigError, match="wall_facing_cos is a cosine, at most 1"):
         config_from_dict({"wall_facing_cos": 5})
     assert config_from_dict({"roof_facing_cos": None}).roof_facing_cos is None
+    # Switches take true or false (a number is a mistake, not a truth value).
+    assert config_from_dict({"shoulder_reach_own_flank": False}).shoulder_reach_own_flank is False
+    assert config_from_dict({"shoulder_pair": True}).shoulder_pair is True
+    with pytest.raises(ConfigError, match="shoulder_pair must be true or false, got 0"):
+        config_from_dict({"shoulder_pair": 0})
     (tmp_path / "m.toml").write_text("[measure]\neps_m = 0.05\nbootstrap = 5\n")
     assert load_config(tmp_path / "m.toml") == MeasureConfig(eps_m=0.05, bootstrap=5)
     (tmp_path / "m.yaml").write_text("ground_thickness_res: 4\nmin_cluster_points: 100\n")
