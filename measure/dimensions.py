@@ -17,9 +17,10 @@ translation puts the ground at height 0, so z' is the height above the fitted gr
   peak of the wall's own sideways-facing points when there is one within reach (``wall_facing_cos``).
   Fallbacks: one side wall + the robust extreme on the other side (a sparse side); robust extent
   (no walls, e.g. a flatbed). A wider part just outside a wall (a flatbed's deck and cab beside its
-  load) is a shoulder: more points beyond the wall's own scatter than its tail puts there. A rounded body (a tank) is widest at one height only: when the width
-  profile over height (the walls' peaks per height slice) has a concave maximum inside its range,
-  its vertex is the width if wider (``curved_flank_min_drop``).
+  load) is a shoulder: more points beyond the wall's own scatter than its tail puts there. A rounded
+  body (a tank) is widest at one height only: when the width profile over height (the walls' peaks
+  per height slice) has a concave maximum inside its range, its vertex is the width if wider
+  (``curved_flank_min_drop``).
 - Length: the rear peak (the box's rear face: the end whose end-peak is higher) to the front.
   The front is the front face's peak when there is one at the front end, else the robust front
   extreme (a rounded or sparse cab). Fallback: robust extent. When both ends' own facing points
@@ -291,7 +292,6 @@ class _Shoulder:
 
     def __init__(self, counts, grid, dens, h: float, noise: float):
         self.grid, self.dens, self.h, self.noise = grid, dens, h, noise
-        self.s_eff = float(np.hypot(noise, h))
         self.d = _wall_reach(noise, h)
         self.cdf = np.cumsum(counts)
         self.tot = self.cdf[-1]
@@ -405,8 +405,9 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
     """Width from the width projection's histogram counts (see the module docstring); side_counts: the
     same of the sideways-facing points, which place the walls (None: the peaks of all points);
     extent_counts: the same of the points above the ground's skirt, which give the extent the walls must
-    span and bound a shoulder (``width_min_height``; None: all points); upper_cdf: the cumulative
-    counts of the points near the top, which tell a fringe from a shoulder (``shoulder_fringe_height``; None: no test)."""
+    span and bound a shoulder (``width_min_height``; None: all points); upper_cdf: the cumulative counts of
+    the points near the top, which tell a fringe from a shoulder (``shoulder_fringe_height``; None: no
+    test)."""
     dens = smooth_counts(counts, step, h)
     pos = _wall_peaks(counts, grid, dens, h, step, cfg)
     ext = counts if extent_counts is None else extent_counts
