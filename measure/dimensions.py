@@ -323,13 +323,12 @@ class _Shoulder:
         c = self.cdf if cdf is None else cdf
         return float(np.interp(b, self.grid, c) - np.interp(a, self.grid, c)) / self.tot
 
-    def wall_tail(self, e: float, side: int, own: bool = False) -> float:
-        """Share of all points the wall at e (m) puts beyond e + side * reach (own: see ``reach``), if its
+    def wall_tail(self, e: float, side: int, d: float) -> float:
+        """Share of all points the wall at e (m) puts beyond e + side * d (its reach, m: see ``reach``), if its
         profile is Gaussian as wide as its outer flank."""
         from scipy.stats import norm
 
         # The outer flank's width, though a shoulder broadens it: the wall's tail is granted all it could be.
-        d = self.reach(e, side, own)
         sigma = max(self.flank_sigma(e, side), d / 2.5)
         wall = self.band_mass(e - 2 * sigma, e + 2 * sigma) / 0.954
         return wall * float(norm.sf(d / sigma))
@@ -374,7 +373,7 @@ def _shoulder_excess(sh: _Shoulder, walls: tuple[float, float], extent: tuple[fl
         d = sh.reach(e, side, own)
         band = (lo, e - d) if side < 0 else (e + d, hi)
         out_m = sh.band_mass(*band)
-        tail = sh.wall_tail(e, side, own)
+        tail = sh.wall_tail(e, side, d)
         excess[side] = out_m / max(tail, 1e-12) if out_m >= cfg.shoulder_min_mass and band[1] > band[0] else 0.0
         if up_cdf is not None and excess[side] > 0 and sh.band_mass(*band, cdf=up_cdf) > 0.5 * out_m:
             fringe.add(side)
