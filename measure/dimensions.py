@@ -26,7 +26,8 @@ translation puts the ground at height 0, so z' is the height above the fitted gr
   extreme (a rounded or sparse cab). Fallback: robust extent. When both ends' own facing points
   peak inside those peaks by more than the blur, the ends move in to them (``end_facing_cos``: a
   roof's and walls' smear past both faces along the rays). An end peak beyond the extent of the points
-  above the ground's skirt is no end (``length_min_height``).
+  above the ground's skirt is no end (``length_min_height``). An end moves out to a face that a stretch
+  of heights holds beyond it (``end_step_blurs``: a cab's nose ahead of its set-back windscreen).
 Every number records the rule that produced it, and an uncertainty from a Poisson bootstrap of
 the binned projections plus the point spacing and the noise measured on the ground, plus the gap to
 a second reading the data allow (the walls' own width, a doubtful shoulder's edge, the top of the
@@ -136,6 +137,23 @@ class DimensionConfig:
                                        # points (seed 21 draw 0, a 7.6 m box from 20 m: L +5.3 %). The
                                        # length's uncertainty spans both readings. None: off (the paper).
                                        # Measured: README, issue 12's twenty-ninth round
+    end_step_blurs: float | None = 2.0  # each end of the length moves out to a face that a stretch of heights
+                                       # holds beyond it by more than this many blurs (hypot(noise,
+                                       # bandwidth)): per height slice (``end_profile_slices`` of the height
+                                       # above ``length_min_height`` x the top) the main density peak of
+                                       # the points facing along the length within the end window either
+                                       # side of the end; the stretch is ``end_step_slices`` consecutive
+                                       # slices, read at the least of them. A cab's nose stands ahead of its
+                                       # set-back windscreen and roof (1-2 % of the length), a flatbed's
+                                       # deck behind its load; all points' end peak sits on the larger
+                                       # upper face. The length's uncertainty spans both readings.
+                                       # Needs end_facing_cos. None: off. Measured: README, issue 12's
+                                       # thirty-fifth round
+    end_profile_slices: int = 20       # height slices of the end profile (``end_step_blurs``)
+    end_step_slices: int = 3           # consecutive slices (a majority of them holding a face) a stretch spans
+    end_step_max_height: float = 0.5   # a stretch starts below this share of the top: what the rays smear past
+                                       # an end face is its roof's and walls' tops; what stands out low is the
+                                       # body (a nose, a bumper, a deck)
     wall_facing_cos: float | None = 0.7  # each side wall is placed at the density peak of the sideways-facing
                                        # points (|normal . u_2| >= this, 45 deg) found up to 2.5 noise
                                        # sigmas outwards of the wall's peak of all points; None: the peak
@@ -525,6 +543,67 @@ def _face_length(out: dict, ends: dict, x: np.ndarray, facing: np.ndarray, h: fl
         new[k] = f
     if tuple(new) != tuple(ends["length"]):
         out["length_peaks_m"] = out["length_m"]
+        ends["length"] = (new[0], new[1])
+        out["length_m"] = float(new[1] - new[0])
+
+
+def end_profile(rel: np.ndarray, z: np.ndarray, z_lo: float, top: float, blur: float, n_slices: int,
+                min_points: int = 30) -> np.ndarray:
+    """Where an end face lies at each height: per slice of [z_lo, top] (m), the main density peak (m) of
+    the facing points' positions rel (m, outwards of the end); NaN where a slice holds fewer than min_points.
+
+    z: those points' heights (m); blur: the kernel bandwidth (m). The main peak, not the outermost: a
+    slice's smear past its face is a lesser peak, a cab's nose below its windscreen is the slice's face.
+    """
+    edges = np.linspace(z_lo, top, n_slices + 1)
+    out = np.full(n_slices, np.nan)
+    for k in range(n_slices):
+        x = rel[(z >= edges[k]) & (z < edges[k + 1])]
+        if len(x) >= min_points:
+            d = binned_kde(x, bandwidth_m=blur, step_m=blur / 4)
+            out[k] = refine_peak(d.grid_m, d.density, int(np.argmax(d.density)))
+    return out
+
+
+def outer_stretch(values: np.ndarray, window: int, last_start: int | None = None) -> float | None:
+    """The outermost stretch of an end profile (``end_profile``, m): the highest, over ``window`` consecutive
+    slices a majority of them valid, of their least value (one slice's stray peak makes no stretch).
+    last_start: the highest slice a stretch may start at (None: any). None when no stretch has a majority."""
+    best = None
+    n_start = len(values) - window + 1 if last_start is None else min(len(values) - window, last_start) + 1
+    for i in range(n_start):
+        seg = values[i:i + window]
+        seg = seg[np.isfinite(seg)]
+        if len(seg) > window // 2:
+            best = float(seg.min()) if best is None else max(best, float(seg.min()))
+    return best
+
+
+def _outer_end_faces(out: dict, ends: dict, x: np.ndarray, facing: np.ndarray, z: np.ndarray, top: float, h: float,
+                     noise: float, extent: float, cfg: DimensionConfig) -> None:
+    """Move each end of the length out to a face that a stretch of heights holds beyond it by more than
+    ``end_step_blurs`` x the blur, hypot(noise, h) (m), starting below ``end_step_max_height`` x the top: a
+    cab's nose ahead of its set-back windscreen and roof, whose points make all points' end peak. x: the points' positions on the length axis (m); facing:
+    the points facing along it (mask); z: heights (m); top: the truck's top (m); extent: the length's robust
+    extent (m). The reading before becomes the other reading the uncertainty spans (``length_peaks_m``),
+    unless ``_face_length`` set one.
+    """
+    blur = float(np.hypot(noise, h))
+    win = cfg.end_window * extent + 2 * h
+    z_lo = (cfg.length_min_height or 0.0) * top
+    n = cfg.end_profile_slices
+    # The slice holding end_step_max_height x the top: the highest a stretch may start at.
+    last_start = int(np.floor((cfg.end_step_max_height * top - z_lo) / max(top - z_lo, 1e-12) * n))
+    new = list(ends["length"])
+    for k, side in ((0, -1), (1, 1)):
+        rel = side * (x - new[k])            # outwards of this end
+        sel = facing & (np.abs(rel) <= win) & (z >= z_lo)
+        best = outer_stretch(end_profile(rel[sel], z[sel], z_lo, top, blur, n), cfg.end_step_slices, last_start)
+        if best is not None and best > cfg.end_step_blurs * blur:
+            new[k] += side * best
+    if tuple(new) != tuple(ends["length"]):
+        if out.get("length_peaks_m") is None:
+            out["length_peaks_m"] = out["length_m"]
         ends["length"] = (new[0], new[1])
         out["length_m"] = float(new[1] - new[0])
 
@@ -1217,6 +1296,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
         along = np.abs(normals[:, :2] @ u1) >= config.end_facing_cos
         lo_a, hi_a = np.quantile(a, [config.extreme_fraction, 1 - config.extreme_fraction])
         _face_length(out, ends, a, along, bw["length"], noise_m, float(hi_a - lo_a), config)
+        if config.end_step_blurs is not None:
+            _outer_end_faces(out, ends, a, along, z, top, bw["length"], noise_m, float(hi_a - lo_a), config)
     plateau = config.wall_plateau_slices is not None and flank_profile is not None   # the walls read from that profile
     # Height: the roof level (Eq. 7, robust).
     hz = max(noise_m, res / 2)

@@ -113,6 +113,12 @@ class MeasureConfig:
     end_facing_cos: float | None = 0.7       # each end of the length moved in to its own face's points when the
                                              # peak of all points lies beyond it (None: the paper's peaks; see
                                              # measure.dimensions.DimensionConfig)
+    end_step_blurs: float | None = 2.0       # each end of the length moved out to a face a stretch of low heights
+                                             # holds beyond it by more than this many blurs: a cab's nose ahead of
+                                             # its windscreen (None: off; see measure.dimensions.DimensionConfig)
+    end_profile_slices: int = 20             # ... height slices of that profile
+    end_step_slices: int = 3                 # ... consecutive slices a stretch spans
+    end_step_max_height: float = 0.5         # ... a stretch starting below this share of the top
     wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see

@@ -591,3 +591,49 @@ def test_a_skirt_of_ground_points_past_an_end_face_is_no_end():
     b = measure_dimensions(bumped, resolution_m=0.016, noise_m=0.02)
     assert abs(b["length_m"] - (L + 0.12)) < 0.03, b["length_m"]
     assert abs(m["length_m"] - L) <= 2 * m["uncertainty_m"]["length"] < off["length_m"] - L, m["uncertainty_m"]
+
+
+def _cab_over_nose(rng, L=2.0, W=0.34, H=0.42, setback=0.035, smear=0.05, n=40_000, sigma=0.003):
+    """A model box truck whose cab's lower part (its nose, 0.1-0.5 H) reaches the front at L/2 while its
+    windscreen and roof (0.5-0.8 H) stand ``setback`` (m) behind it, as the envelope's cabs do."""
+    x_cab0, xf = 0.25 * L, L / 2
+    pts = [_face(rng, n, (-L / 2, x_cab0 - 0.02), (s * W / 2, s * W / 2), (0.1 * H, H)) for s in (-1, 1)]
+    pts.append(_face(rng, n, (-L / 2, x_cab0 - 0.02), (-W / 2, W / 2), (H, H)))                       # box roof
+    pts.append(_face(rng, n // 4, (-L / 2, -L / 2), (-W / 2, W / 2), (0.1 * H, H)))                    # rear face
+    pts.append(_face(rng, n // 4, (x_cab0 - 0.02, x_cab0 - 0.02), (-W / 2, W / 2), (0.8 * H, H)))      # box front above the cab
+    for s in (-1, 1):
+        pts.append(_face(rng, n // 4, (x_cab0, xf), (s * W / 2, s * W / 2), (0.1 * H, 0.5 * H)))       # nose sides
+        pts.append(_face(rng, n // 4, (x_cab0, xf - setback), (s * W / 2, s * W / 2), (0.5 * H, 0.8 * H)))  # cab sides
+    # A dark nose: few points on its face, no peak of its own among all points.
+    pts.append(_face(rng, n // 100, (xf, xf), (-W / 2, W / 2), (0.1 * H, 0.5 * H)))
+    pts.append(_face(rng, n // 20, (xf - setback, xf), (-W / 2, W / 2), (0.5 * H, 0.5 * H)))           # ledge at the sill
+    pts.append(_face(rng, n // 4, (xf - setback, xf - setback), (-W / 2, W / 2), (0.5 * H, 0.8 * H)))  # windscreen
+    pts.append(_face(rng, n // 2, (x_cab0, xf - setback), (-W / 2, W / 2), (0.8 * H, 0.8 * H)))         # cab roof
+    # The rear's roof and wall tops smeared past its face along the rays (``end_facing_cos`` moves that end in).
+    pts.append(_face(rng, n // 6, (-L / 2 - smear, -L / 2), (-W / 2, W / 2), (H, H)))
+    pts.append(_face(rng, n // 12, (-L / 2 - smear - 0.004, -L / 2 - smear + 0.004), (-W / 2, W / 2), (0.8 * H, H)))
+    xyz = np.vstack(pts)
+    return xyz + rng.normal(0.0, sigma, xyz.shape)
+
+
+def test_an_end_is_read_at_a_cabs_nose_ahead_of_its_set_back_windscreen():
+    """A cab's nose stands ahead of its windscreen and roof (1-2 % of the length in the envelope's cabs). With
+    the rear's roof smeared past its face, both ends' facing points lie inside all points' peaks and the ends
+    move in to them (``end_facing_cos``), the front to the windscreen, whose facing points outnumber the
+    nose's (seed 2062's draw 18, a model tanker: L -2.21 %, its front 2.24 % behind the nose). Per height the
+    end-facing points' main peak finds the nose over a stretch of low heights (``end_step_blurs``); the
+    smear at the rear's top is no such stretch. Measured: L -0.005 % (sigma 1.2 %: it spans all points'
+    peaks, +2.3 %); without, -1.75 %. A plain box reads the same either way."""
+    L, setback = 2.0, 0.035
+    xyz = _cab_over_nose(np.random.default_rng(4), L=L, setback=setback)
+    off = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003, config=replace(DimensionConfig(), end_step_blurs=None))
+    assert off["length_m"] < L - 0.8 * setback, off["length_m"]
+    m = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003)
+    assert abs(m["length_m"] - L) < 0.1 * setback, m["length_m"]
+    assert abs(m["length_m"] - L) <= 2 * m["uncertainty_m"]["length"], m["uncertainty_m"]
+    assert m["length_peaks_m"] == off["length_peaks_m"] > L
+    # A plain box: no stretch stands out, nothing moves.
+    clean = _truck(np.random.default_rng(9), wall_sigma=0.002)
+    a = measure_dimensions(clean, resolution_m=0.004, noise_m=0.002)
+    b = measure_dimensions(clean, resolution_m=0.004, noise_m=0.002, config=replace(DimensionConfig(), end_step_blurs=None))
+    assert a["length_m"] == b["length_m"] and a["length_peaks_m"] is None

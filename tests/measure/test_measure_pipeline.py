@@ -149,6 +149,10 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
     with pytest.raises(ConfigError, match="wall_facing_cos is a cosine, at most 1"):
         config_from_dict({"wall_facing_cos": 5})
     assert config_from_dict({"roof_facing_cos": None}).roof_facing_cos is None
+    # The end-profile rule reaches measure_dimensions through MeasureConfig (off with null).
+    assert config_from_dict({"end_step_blurs": None, "end_step_slices": 4}).end_step_slices == 4
+    with pytest.raises(ConfigError, match="end_step_slices must be an integer"):
+        config_from_dict({"end_step_slices": 2.5})
     # Switches take true or false (a number is a mistake, not a truth value).
     assert config_from_dict({"shoulder_reach_own_flank": False}).shoulder_reach_own_flank is False
     assert config_from_dict({"shoulder_pair": True}).shoulder_pair is True
