@@ -583,10 +583,11 @@ def _outer_end_faces(out: dict, ends: dict, x: np.ndarray, facing: np.ndarray, z
                      noise: float, extent: float, cfg: DimensionConfig) -> None:
     """Move each end of the length out to a face that a stretch of heights holds beyond it by more than
     ``end_step_blurs`` x the blur, hypot(noise, h) (m), starting below ``end_step_max_height`` x the top: a
-    cab's nose ahead of its set-back windscreen and roof, whose points make all points' end peak. x: the points' positions on the length axis (m); facing:
-    the points facing along it (mask); z: heights (m); top: the truck's top (m); extent: the length's robust
-    extent (m). The reading before becomes the other reading the uncertainty spans (``length_peaks_m``),
-    unless ``_face_length`` set one.
+    cab's nose ahead of its set-back windscreen and roof, whose points make all points' end peak.
+
+    x: the points' positions on the length axis (m); facing: the points facing along it (mask); z: heights
+    (m); top: the truck's top (m); extent: the length's robust extent (m). The reading before becomes the
+    other reading the uncertainty spans (``length_peaks_m``), unless ``_face_length`` set one.
     """
     blur = float(np.hypot(noise, h))
     win = cfg.end_window * extent + 2 * h
