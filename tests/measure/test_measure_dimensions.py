@@ -620,7 +620,8 @@ def test_an_end_is_read_at_a_cabs_nose_ahead_of_its_set_back_windscreen():
     """A cab's nose stands ahead of its windscreen and roof (1-2 % of the length in the envelope's cabs). With
     the rear's roof smeared past its face, both ends' facing points lie inside all points' peaks and the ends
     move in to them (``end_facing_cos``), the front to the windscreen, whose facing points outnumber the
-    nose's (seed 2062's draw 18, a model tanker: L -2.21 %, its front 2.24 % behind the nose). Per height the
+    nose's. (Seed 2062's draw 18, a model tanker, read L -2.21 %, its front at the windscreen 2.24 % behind the
+    nose, whose peak of all points was too weak to count as an end peak.) Per height the
     end-facing points' main peak finds the nose over a stretch of low heights (``end_step_blurs``); the
     smear at the rear's top is no such stretch. Measured: L -0.005 % (sigma 1.2 %: it spans all points'
     peaks, +2.3 %); without, -1.75 %. A plain box reads the same either way."""
