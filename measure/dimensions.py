@@ -20,7 +20,8 @@ translation puts the ground at height 0, so z' is the height above the fitted gr
   load) is a shoulder: more points beyond the wall's own scatter than its tail puts there. A rounded
   body (a tank) is widest at one height only: when the width profile over height (the walls' peaks
   per height slice) has a concave maximum inside its range, its vertex is the width if wider
-  (``curved_flank_min_drop``).
+  (``curved_flank_min_drop``). A wider part low on the truck whose points are too few for a shoulder (a
+  flatbed's deck strip and thin edge) is the outermost edge in its own thin height slice (``ledge_blurs``).
 - Length: the rear peak (the box's rear face: the end whose end-peak is higher) to the front.
   The front is the front face's peak when there is one at the front end, else the robust front
   extreme (a rounded or sparse cab). Fallback: robust extent. When both ends' own facing points
@@ -211,6 +212,21 @@ class DimensionConfig:
                                        # share of the top: a box's fattened walls and flaring roof rim do
                                        # (0.52-0.89 on 20 tuning clouds), a flatbed's deck and cab beside its
                                        # narrower load do not (0.12-0.50 on 10 of 11)
+    ledge_blurs: float | None = 2.0    # each side of the width moves out to a wider part low on the truck (a
+                                       # flatbed's deck beside its narrower load, whose thin edge and top
+                                       # strip hold too few points to make a peak or a shoulder over all
+                                       # heights): per thin slice of the low part (``ledge_slice_share`` of
+                                       # the top, from ``flank_min_height`` up to ``ledge_max_height``) the
+                                       # outer edge of its points (the outermost density peak's half-height
+                                       # crossing outwards), where that part spans ``ledge_min_cover`` of the
+                                       # length; the outermost, less the walls' own peak-to-edge offset (the
+                                       # same reading over the upper slices), when it lies beyond the side by
+                                       # more than this many blurs, hypot(noise, bandwidth) (rule
+                                       # ``low_ledge``; the reading before is the other one the uncertainty
+                                       # spans). None: off. Measured: README, issue 12's thirty-sixth round
+    ledge_slice_share: float = 0.025
+    ledge_max_height: float = 0.5
+    ledge_min_cover: float = 0.5
     dark_body_max_brightness: float | None = 0.2  # a body whose median luma is below this share of the ground's
                                        # (``body_brightness``) has its height from its top 0.5 % of points
                                        # (``dark_top_99.5``) instead of a roof level. Why: a dark roof's depth
@@ -495,11 +511,24 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
     return float(extent), "robust_extent", (lo, hi), dens, None, None
 
 
+def outer_peak_edge(x: np.ndarray, h: float, rel: float = 0.3) -> tuple[float, float] | None:
+    """The outermost density peak (towards larger x, m) holding >= rel x the highest one, and where the density
+    falls to half that peak's height outwards of it (m: a blurred step's or strip's true edge); None without
+    a peak. x: positions (m); h: kernel bandwidth (m)."""
+    d = binned_kde(x, bandwidth_m=h, step_m=h / 4)
+    pk = local_maxima(d.density, rel)
+    if not len(pk):
+        return None
+    i = j = int(pk[-1])
+    while j + 1 < len(d.density) and d.density[j + 1] > 0.5 * d.density[i]:
+        j += 1
+    return refine_peak(d.grid_m, d.density, i), float(d.grid_m[j])
+
+
 def _slice_outer_peak(x: np.ndarray, h: float) -> float:
     """Position (m) of the outermost density peak (towards larger x) holding >= 0.3 x the highest one."""
-    d = binned_kde(x, bandwidth_m=h, step_m=h / 4)
-    pk = local_maxima(d.density, 0.3)
-    return refine_peak(d.grid_m, d.density, int(pk[-1])) if len(pk) else float("nan")
+    r = outer_peak_edge(x, h)
+    return r[0] if r is not None else float("nan")
 
 
 def face_end(x_face: np.ndarray, e: float, side: int, win: float, h: float, min_points: int = 30) -> float | None:
@@ -565,18 +594,22 @@ def end_profile(rel: np.ndarray, z: np.ndarray, z_lo: float, top: float, blur: f
     return out
 
 
+def window_stats(values: np.ndarray, window: int, starts, stat):
+    """(stat of the valid values, first slice) of each run of ``window`` consecutive slices of a height profile
+    (NaN: a slice that does not count) starting at one of starts, where a majority of the run is valid."""
+    for i in starts:
+        seg = values[i:i + window]
+        seg = seg[np.isfinite(seg)]
+        if len(seg) > window // 2:
+            yield float(stat(seg)), i
+
+
 def outer_stretch(values: np.ndarray, window: int, last_start: int | None = None) -> float | None:
     """The outermost stretch of an end profile (``end_profile``, m): the highest, over ``window`` consecutive
     slices a majority of them valid, of their least value (one slice's stray peak makes no stretch).
     last_start: the highest slice a stretch may start at (None: any). None when no stretch has a majority."""
-    best = None
     n_start = len(values) - window + 1 if last_start is None else min(len(values) - window, last_start) + 1
-    for i in range(n_start):
-        seg = values[i:i + window]
-        seg = seg[np.isfinite(seg)]
-        if len(seg) > window // 2:
-            best = float(seg.min()) if best is None else max(best, float(seg.min()))
-    return best
+    return max((v for v, _ in window_stats(values, window, range(n_start), np.min)), default=None)
 
 
 def _outer_end_faces(out: dict, ends: dict, x: np.ndarray, facing: np.ndarray, z: np.ndarray, top: float, h: float,
@@ -785,14 +818,10 @@ def wall_plateau(widths: np.ndarray, window: int, first: int, tol: float = 0.0) 
     deck, wheels and cab beside its narrower load), not the body's walls. widths: per slice (m, NaN where a
     slice does not count).
     """
-    def medians(starts):
-        for i in starts:
-            seg = widths[i:i + window]
-            seg = seg[np.isfinite(seg)]
-            if len(seg) > window // 2:
-                yield float(np.median(seg)), i
-    up = max(medians(range(first, len(widths) - window + 1)), default=None, key=lambda r: r[0])
-    low = max(medians(range(0, min(first, len(widths) - window + 1))), default=None, key=lambda r: r[0])
+    up = max(window_stats(widths, window, range(first, len(widths) - window + 1), np.median), default=None,
+             key=lambda r: r[0])
+    low = max(window_stats(widths, window, range(0, min(first, len(widths) - window + 1)), np.median), default=None,
+              key=lambda r: r[0])
     if up is None or (low is not None and low[0] > up[0] + tol):
         return None
     return up
@@ -825,6 +854,72 @@ def _plateau_width(out: dict, rules: dict, ends: dict, widths: np.ndarray, blur:
     out["width_m"] = float(r[0])
     ends["width"] = (mid - 0.5 * r[0], mid + 0.5 * r[0])
     rules["width"] = "wall_plateau"
+
+
+def slice_edges(o: np.ndarray, z: np.ndarray, a: np.ndarray, z_lo: float, z_hi: float, dz: float, blur: float,
+                a_bins: np.ndarray, min_points: int = 50) -> list[tuple[float, float, float]]:
+    """Per height slice of [z_lo, z_hi) dz thick (m), the outer edge of a side's points: (peak, edge, cover) with
+    the outermost density peak and its outer half-height crossing (``outer_peak_edge``, m on o) and the share of
+    the length bins (a_bins, m) holding at least 2 points within 2 blurs of that peak.
+
+    o: the points' positions outwards of the side (m); z: heights (m); a: positions along the length (m); blur:
+    the kernel bandwidth (m). Slices holding fewer than min_points, or no peak, are left out.
+    """
+    rows = []
+    for zl in np.arange(z_lo, z_hi - 1e-9 * max(z_hi, 1.0), dz):
+        m = (z >= zl) & (z < zl + dz)
+        if m.sum() < min_points:
+            continue
+        r = outer_peak_edge(o[m], blur)
+        if r is None:
+            continue
+        near = np.abs(o[m] - r[0]) < 2 * blur
+        hc, _ = np.histogram(a[m][near], bins=a_bins)
+        rows.append((r[0], r[1], float((hc >= 2).mean())))
+    return rows
+
+
+def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray, z: np.ndarray, top: float,
+               blur: float, cfg: DimensionConfig) -> None:
+    """Move each side of the width out to a wider part low on the truck (``ledge_blurs``): a flatbed's deck
+    beside its narrower load, too thin to make a peak or a shoulder of all the points, is one slice's outer
+    edge along the length.
+
+    a, b: the points' positions along the length and the width (m); z: heights (m); top: the truck's top (m);
+    blur: the walls' blur, hypot(noise, bandwidth) (m). A slice's edge is its outermost peak's half-height
+    crossing, a wall's lying beyond its peak by the walls' offset (median over the upper slices, half the top
+    up to 0.95 of it, in 0.05 steps). A side has a ledge where its low slices' outermost edge, less that
+    offset, lies beyond the side's reading, and that edge beyond the walls' own (the upper slices' median
+    edge), both by more than ``ledge_blurs`` blurs: a plain box's low slices stand where its walls do. The
+    side moves out to it. A rounded flank (``curved_flank_vertex``) is widest at its own height: not looked
+    at. The reading before becomes the other reading the uncertainty spans (``width_walls_m``); the face gates
+    still look for the walls at its edges.
+    """
+    width = out["width_m"]
+    a_bins = np.linspace(*ends["length"], 21)
+    new = list(ends["width"])
+    for k, side in ((0, -1), (1, 1)):
+        o = side * (b - new[k])              # outwards of this side
+        sel = (o > -0.25 * width) & (o < 0.2 * width)
+        o_s, z_s, a_s = o[sel], z[sel], a[sel]
+        upper = slice_edges(o_s, z_s, a_s, 0.5 * top, 0.95 * top, 0.05 * top, blur, a_bins)
+        low = [r for r in slice_edges(o_s, z_s, a_s, cfg.flank_min_height * top, cfg.ledge_max_height * top,
+                                      cfg.ledge_slice_share * top, blur, a_bins) if r[2] >= cfg.ledge_min_cover]
+        if not upper or not low:
+            continue
+        edge_low = max(r[1] for r in low)
+        shift = edge_low - float(np.median([r[1] - r[0] for r in upper]))
+        # Beyond the side's reading and beyond the walls' own edges too: the reading may lie off the walls
+        # (a shoulder's edge, or the walls' plateau centred between peaks a sheared top pulled aside).
+        if min(shift, edge_low - float(np.median([r[1] for r in upper]))) > cfg.ledge_blurs * blur:
+            new[k] += side * shift
+    if tuple(new) == tuple(ends["width"]):
+        return
+    out.setdefault("width_wall_edges_m", tuple(ends["width"]))
+    out["width_walls_m"] = width
+    out["width_m"] = float(new[1] - new[0])
+    ends["width"] = (new[0], new[1])
+    rules["width"] = "low_ledge"
 
 
 def _highest_stretch_roof(a, z, ends, level: float, rule: str, support: float, hz: float, step: float, normals, out: dict,
@@ -1004,7 +1099,7 @@ def refine_heading(xy: np.ndarray, u1: np.ndarray, resolution_m: float, max_turn
 
 
 # Fallback edges per rule: an edge taken from an extreme is pushed outwards by the noise (uncertainty).
-_EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "curved_flank_vertex": 0, "wall_plateau": 0, "one_peak_plus_extreme": 1,
+_EXTREME_EDGES = {"kde_two_peaks": 0, "kde_peaks_plus_outer_shoulder": 1, "curved_flank_vertex": 0, "wall_plateau": 0, "low_ledge": 0, "one_peak_plus_extreme": 1,
                   "rear_peak_to_front_peak": 0, "rear_peak_to_front_extreme": 1, "robust_extent": 2}
 
 
@@ -1159,7 +1254,7 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
             warnings.append(f"roof barely seen ({100 * roof_support:.1f}% of the truck's points at the roof level): height may read low by up to {3 * hz:.3g} m")
     for name in ("length", "width"):
         if rules[name] not in ("kde_two_peaks", "rear_peak_to_front_peak", "kde_peaks_plus_outer_shoulder", "curved_flank_vertex",
-                               "wall_plateau"):
+                               "wall_plateau", "low_ledge"):
             warnings.append(f"{name} from the fallback rule '{rules[name]}' (the paper's peak rule did not apply)")
     # Points above the roof level that the noise does not explain: the roof level is a lower surface (a
     # sparse or sagging roof, a tank's rounded crest, a cab or wall top below it), or stray points sit above
@@ -1208,7 +1303,8 @@ def _uncertainties(rules: dict, bw: dict, boots: dict, res: float, noise_m: floa
         # ripple): the uncertainty spans both (+-2 sigma).
         unc["width"] = float(np.hypot(unc["width"], abs(values["width"] - width_walls) / 2))
         how = {"curved_flank_vertex": "from the widest height of a rounded flank; the walls' density peaks over all heights are",
-               "wall_plateau": "from the side walls' widest stretch of heights; their density peaks over all heights are"
+               "wall_plateau": "from the side walls' widest stretch of heights; their density peaks over all heights are",
+               "low_ledge": "out to a wider part low on the truck (a deck beside its load); read without it, the width is"
                }.get(rules["width"], "includes a wider part outside the side walls; the walls alone are")
         warnings.append(f"width {values['width']:.3g} m {how} {width_walls:.3g} m apart (the uncertainty covers both)")
     if width_shoulder is not None:
@@ -1332,6 +1428,8 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     if (plateau and rules["width"] != "curved_flank_vertex"
             and np.isfinite(drop) and drop < config.wall_plateau_max_top_drop):
         _plateau_width(out, rules, ends, flank_profile[1], float(np.hypot(noise_m, bw["width"])), b, z, top, config)
+    if config.ledge_blurs is not None and rules["width"] != "curved_flank_vertex":
+        _low_ledge(out, rules, ends, a, b, z, top, float(np.hypot(noise_m, bw["width"])), config)
     # The roof's own noise is only needed by the opt-in top reading (a per-cell pass over the truck's points).
     if config.top_above_roof_sigmas is not None and hrule == "roof_peak":
         roof_sigma = _roof_noise(xyz, float(height), out["height_top_m"], res, hz)

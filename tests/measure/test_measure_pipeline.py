@@ -153,6 +153,10 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
     assert config_from_dict({"end_step_blurs": None, "end_step_slices": 4}).end_step_slices == 4
     with pytest.raises(ConfigError, match="end_step_slices must be an integer"):
         config_from_dict({"end_step_slices": 2.5})
+    # So does the low-ledge rule (a flatbed's deck in its own height slice).
+    assert config_from_dict({"ledge_blurs": None, "ledge_min_cover": 0.6}).ledge_min_cover == 0.6
+    with pytest.raises(ConfigError, match="ledge_slice_share"):
+        config_from_dict({"ledge_slice_share": -0.1})
     # Switches take true or false (a number is a mistake, not a truth value).
     assert config_from_dict({"shoulder_reach_own_flank": False}).shoulder_reach_own_flank is False
     assert config_from_dict({"shoulder_pair": True}).shoulder_pair is True
