@@ -227,6 +227,8 @@ class DimensionConfig:
     ledge_slice_share: float = 0.025
     ledge_max_height: float = 0.5
     ledge_min_cover: float = 0.5
+    ledge_walls_quantile: float = 0.75  # the walls' edge a ledge must stand beyond: this quantile of the upper
+                                       # slices' edges (the median let a model box's wall foot, 3 mm out, pass)
     dark_body_max_brightness: float | None = 0.2  # a body whose median luma is below this share of the ground's
                                        # (``body_brightness``) has its height from its top 0.5 % of points
                                        # (``dark_top_99.5``) instead of a roof level. Why: a dark roof's depth
@@ -889,8 +891,9 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
     blur: the walls' blur, hypot(noise, bandwidth) (m). A slice's edge is its outermost peak's half-height
     crossing, a wall's lying beyond its peak by the walls' offset (median over the upper slices, half the top
     up to 0.95 of it, in 0.05 steps). A side has a ledge where its low slices' outermost edge, less that
-    offset, lies beyond the side's reading, and that edge beyond the walls' own (the upper slices' median
-    edge), both by more than ``ledge_blurs`` blurs: a plain box's low slices stand where its walls do. The
+    offset, lies beyond the side's reading, and that edge beyond the walls' own (the ``ledge_walls_quantile``
+    of the upper slices' edges), both by more than ``ledge_blurs`` blurs: a plain box's low slices stand where
+    its walls do. The
     side moves out to it. A rounded flank (``curved_flank_vertex``) is widest at its own height: not looked
     at. The reading before becomes the other reading the uncertainty spans (``width_walls_m``); the face gates
     still look for the walls at its edges.
@@ -910,8 +913,10 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
         edge_low = max(r[1] for r in low)
         shift = edge_low - float(np.median([r[1] - r[0] for r in upper]))
         # Beyond the side's reading and beyond the walls' own edges too: the reading may lie off the walls
-        # (a shoulder's edge, or the walls' plateau centred between peaks a sheared top pulled aside).
-        if min(shift, edge_low - float(np.median([r[1] for r in upper]))) > cfg.ledge_blurs * blur:
+        # (a shoulder's edge, or the walls' plateau centred between peaks a sheared top pulled aside); and
+        # beyond most of the walls' slices, not their median: a wall's edge wanders over its height (a paint
+        # band, a flare at its foot) by as much as 2 blurs where the noise is low.
+        if min(shift, edge_low - float(np.quantile([r[1] for r in upper], cfg.ledge_walls_quantile))) > cfg.ledge_blurs * blur:
             new[k] += side * shift
     if tuple(new) == tuple(ends["width"]):
         return

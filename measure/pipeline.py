@@ -126,6 +126,7 @@ class MeasureConfig:
     ledge_slice_share: float = 0.025         # ... those slices' thickness, a share of the top
     ledge_max_height: float = 0.5            # ... slices up to this share of the top
     ledge_min_cover: float = 0.5             # ... a slice's outer part spanning this share of the length
+    ledge_walls_quantile: float = 0.75       # ... and standing beyond this quantile of the upper slices' edges
     wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see
@@ -191,7 +192,7 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
         v = int(v) if want_int else float(v)
         if not np.isfinite(v) or (v < 0) or (v == 0 and k not in ("seed", "bootstrap") and not isinstance(d, int)):
             raise ConfigError(f"{where}: {k} must be a positive number, got {v!r}")
-        if k == "roof_cells_quantile" and v > 1:
+        if k in ("roof_cells_quantile", "ledge_walls_quantile") and v > 1:
             raise ConfigError(f"{where}: {k} is a quantile, at most 1, got {v!r}")
         if k in ("wall_facing_cos", "roof_facing_cos", "end_facing_cos") and v > 1:  # above 1 no point faces: the paper's reading unasked
             raise ConfigError(f"{where}: {k} is a cosine, at most 1 (null for the paper's peaks of all points), got {v!r}")

@@ -157,6 +157,8 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
     assert config_from_dict({"ledge_blurs": None, "ledge_min_cover": 0.6}).ledge_min_cover == 0.6
     with pytest.raises(ConfigError, match="ledge_slice_share"):
         config_from_dict({"ledge_slice_share": -0.1})
+    with pytest.raises(ConfigError, match="ledge_walls_quantile is a quantile, at most 1"):
+        config_from_dict({"ledge_walls_quantile": 1.5})
     # Switches take true or false (a number is a mistake, not a truth value).
     assert config_from_dict({"shoulder_reach_own_flank": False}).shoulder_reach_own_flank is False
     assert config_from_dict({"shoulder_pair": True}).shoulder_pair is True
