@@ -893,10 +893,9 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
     up to 0.95 of it, in 0.05 steps). A side has a ledge where its low slices' outermost edge, less that
     offset, lies beyond the side's reading, and that edge beyond the walls' own (the ``ledge_walls_quantile``
     of the upper slices' edges), both by more than ``ledge_blurs`` blurs: a plain box's low slices stand where
-    its walls do. The
-    side moves out to it. A rounded flank (``curved_flank_vertex``) is widest at its own height: not looked
-    at. The reading before becomes the other reading the uncertainty spans (``width_walls_m``); the face gates
-    still look for the walls at its edges.
+    its walls do. The side moves out to it. The caller leaves a rounded flank (``curved_flank_vertex``, widest
+    at its own height) alone. The reading before becomes the other reading the uncertainty spans
+    (``width_walls_m``); the face gates still look for the walls at its edges.
     """
     width = out["width_m"]
     a_bins = np.linspace(*ends["length"], 21)
@@ -916,7 +915,8 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
         # (a shoulder's edge, or the walls' plateau centred between peaks a sheared top pulled aside); and
         # beyond most of the walls' slices, not their median: a wall's edge wanders over its height (a paint
         # band, a flare at its foot) by as much as 2 blurs where the noise is low.
-        if min(shift, edge_low - float(np.quantile([r[1] for r in upper], cfg.ledge_walls_quantile))) > cfg.ledge_blurs * blur:
+        walls_edge = float(np.quantile([r[1] for r in upper], cfg.ledge_walls_quantile))
+        if min(shift, edge_low - walls_edge) > cfg.ledge_blurs * blur:
             new[k] += side * shift
     if tuple(new) == tuple(ends["width"]):
         return
