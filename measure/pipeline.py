@@ -319,6 +319,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     Raises InputError (bad points), StageError (no ground / no truck / ambiguous trucks).
     """
     from measure.dimensions import DimensionConfig, measure_dimensions
+    from measure.resolution import point_lattice
     from measure.truck import ground_frame
 
     cfg = config
@@ -330,6 +331,9 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
 
     t = time.perf_counter()
     res = _resolution(p, cfg, rng, source)
+    # Recorded, not used: the width's density is read at half the point spacing, 0.2 of a fused cloud's voxel,
+    # where the voxel grid's planes ripple it (README, issue 12's thirty-seventh round).
+    lattice = point_lattice(p)
     timings["resolution"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -372,7 +376,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     params = dataclasses.asdict(cfg)
     params["resolved"] = {"resolution_m": res, "ground_band_m": g.xi, "ground_thickness_m": g.d_h, "eps_m": eps,
                           "min_length_m": filt.min_length_m, "min_width_m": filt.min_width_m, "min_height_m": filt.min_height_m,
-                          "resolution_measured": cfg.resolution_m is None}
+                          "resolution_measured": cfg.resolution_m is None, "lattice_m": lattice}
     params["up_hint"] = up
     params["centre_hint"] = centre
     cstats["n_truck_points"] = int(len(truck))

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from measure.cloud_io import read_cloud
 from stereo_recon.core.cloud_io import write_cloud
-from measure.resolution import point_resolution
+from measure.resolution import point_lattice, point_resolution
 from stereo_recon.core.errors import InputError
 
 
@@ -56,3 +57,27 @@ def test_resolution_of_a_regular_grid():
     # Seeded and independent of the order of points.
     perm = np.random.default_rng(3).permutation(len(g))
     assert point_resolution(g[perm], sample_size=500, rng=1) == pytest.approx(0.02, rel=1e-9)
+
+
+def _on_lattice(rng, n: int, voxel_m: float) -> np.ndarray:
+    """Points of a slanted plane as a TSDF gives them: zero crossings along the voxel edges, two of each point's
+    three coordinates on the voxel grid's planes, the third wherever the surface crosses that edge."""
+    p = rng.uniform(0.0, 1.0, (n, 3))
+    p[:, 2] = 0.3 * p[:, 0] + 0.2 * p[:, 1]
+    on = np.round(p / voxel_m) * voxel_m
+    free = rng.integers(0, 3, n)
+    on[np.arange(n), free] = p[np.arange(n), free]
+    return on
+
+
+def test_lattice_of_a_fused_cloud_and_of_a_raw_one():
+    """A fused cloud's points sit on its voxel grid: the spacing is read back from the coordinates many points
+    hold exactly; a raw cloud, or the fused one turned so that every coordinate mixes all three, sits on none."""
+    rng = np.random.default_rng(0)
+    pts = _on_lattice(rng, 50_000, 0.0036)
+    assert point_lattice(pts) == pytest.approx(0.0036, rel=1e-9)
+    assert point_lattice(pts.astype(np.float32)) == pytest.approx(0.0036, rel=1e-6)   # as a PLY stores it
+    assert point_lattice(pts + rng.normal(0.0, 1e-4, pts.shape)) is None
+    # Turned so that each coordinate mixes all three (a ground-aligned frame's: the free one moves them all).
+    turned = pts @ Rotation.from_rotvec([0.2, -0.3, 0.4]).as_matrix().T
+    assert point_lattice(turned) is None

@@ -44,6 +44,20 @@ def _box_distance(p):
     return outside + np.abs(inside)
 
 
+def test_the_fused_cloud_sits_on_its_voxel_grid(box_on_ground):
+    """The measure reads the lattice back from the cloud alone (``measure.resolution.point_lattice``, recorded in
+    a measurement's parameters): it is the fusion's voxel."""
+    from measure.resolution import point_lattice
+
+    scene = box_on_ground(BOX_MIN, BOX_MAX, ground_half_m=2.0)
+    fusion = TSDFFusion(FusionConfig(voxel_m=0.02, depth_max_m=4.0, min_weight=2.0, block_count=64))
+    colour = np.full((H, W, 3), (30, 120, 200), np.uint8)
+    for T in _orbit(6):
+        fusion.integrate(colour, _render(scene, T), K, T)
+    pts, _ = fusion.extract_cloud()
+    assert point_lattice(pts.astype(np.float32)) == pytest.approx(0.02, rel=1e-5)
+
+
 def test_fused_box_points_lie_on_true_surface(box_on_ground):
     scene = box_on_ground(BOX_MIN, BOX_MAX, ground_half_m=2.0)
     voxel = 0.02

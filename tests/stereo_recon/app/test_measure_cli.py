@@ -45,6 +45,7 @@ def test_measure_writes_json_plots_and_report(truck_ply, tmp_path, capsys):
     assert m["verdict"]["overall"] in ("within", "over", "undecided")
     assert len(m["input"]["sha256"]) == 64
     assert m["parameters"]["resolved"]["eps_m"] > 0 and "numpy" in m["versions"]
+    assert m["parameters"]["resolved"]["lattice_m"] is None        # a synthetic cloud, not a fused one
     assert set(m["bandwidths_m"]) == {"length", "width", "height"}
     for png in ("width_density.png", "length_density.png", "top_view.png", "side_view.png"):
         assert (out / png).stat().st_size > 1000
