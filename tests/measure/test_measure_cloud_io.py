@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from measure.cloud_io import read_cloud
 from stereo_recon.core.cloud_io import write_cloud
-from measure.resolution import point_lattice, point_resolution
+from measure.kde import binned_kde, local_maxima
+from measure.resolution import lattice_dither, point_lattice, point_resolution
 from stereo_recon.core.errors import InputError
 
 
@@ -81,3 +82,38 @@ def test_lattice_of_a_fused_cloud_and_of_a_raw_one():
     # Turned so that each coordinate mixes all three (a ground-aligned frame's: the free one moves them all).
     turned = pts @ Rotation.from_rotvec([0.2, -0.3, 0.4]).as_matrix().T
     assert point_lattice(turned) is None
+
+
+def test_lattice_dither_fills_the_comb_a_fused_surface_makes():
+    """A fused surface lying along an axis projects onto it as a comb, one tooth per voxel: a density read at a
+    fifth of the voxel (the width's bandwidth at its floor) peaks on every tooth. Dithered, only the lattice
+    coordinates move (within half a step, the crossing's own coordinate stays), the teeth are gone, and the
+    same seed gives the same dither."""
+    v = 0.0036
+    rng = np.random.default_rng(3)
+    pts = _on_lattice(rng, 60_000, v)
+    # A face off the planes that many crossings share exactly (a wall 1/3 step from them): not a lattice value.
+    wall = np.column_stack([np.full(500, 0.5 + v / 3), rng.uniform(0, 1, 500), rng.uniform(0, 1, 500)])
+    pts = np.vstack([pts, wall])
+    d = lattice_dither(pts, v, rng=7)
+    assert np.array_equal(d, lattice_dither(pts, v, rng=7))
+    assert np.abs(d).max() <= v / 2
+    on = np.abs(pts / v - np.round(pts / v)) < 1e-9
+    assert np.all(d[~on] == 0.0)                                # the crossings' coordinates and the wall stay
+    assert np.mean(d[on] != 0.0) > 0.999
+    assert np.all(d[-500:, 0] == 0.0)
+    # Where the surface lies along x (the points whose free coordinate is z): the comb, and then none.
+    flat = ~on[:, 2] & on[:, 0]
+    x = pts[flat, 0]
+    interior = lambda dens: (dens.grid_m > 0.2) & (dens.grid_m < 0.8)
+    before = binned_kde(x, bandwidth_m=0.2 * v, step_m=v / 40)
+    after = binned_kde(x + d[flat, 0], bandwidth_m=0.2 * v, step_m=v / 40)
+    peaks = lambda dens: int(np.sum(interior(dens)[local_maxima(dens.density)]))
+    assert peaks(before) >= 0.9 * 0.6 / v                      # a peak on every plane
+    ripple = lambda dens: np.std(dens.density[interior(dens)]) / np.mean(dens.density[interior(dens)])
+    # Against as many points drawn uniformly, unquantised (their ripple is the sampling noise alone, 0.14 here).
+    ref = ripple(binned_kde(rng.uniform(0, 1, len(x)), bandwidth_m=0.2 * v, step_m=v / 40))
+    assert ripple(before) > 3 * ref and ripple(after) < 1.2 * ref
+    # A raw cloud has no lattice values: nothing moves.
+    raw = rng.uniform(0, 1, (5000, 3))
+    assert not np.any(lattice_dither(raw, v, rng=0))

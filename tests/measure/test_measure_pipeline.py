@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -467,3 +469,52 @@ def test_end_scraps_join_within_the_gap_and_above_the_floor_only():
     assert join_end_scraps(xyz, labels, [0], 0.06) == [0, 1, 2, 3, 4]
     assert join_end_scraps(xyz, labels, [0], 0.06, min_height_rel=0.0) == [0, 1, 2, 3, 4, 5, 6, 7]
     assert join_end_scraps(xyz, labels, [0], 0.06, min_height_m=0.1) == [0]       # the first front scrap is lower
+
+
+def _fused_like(shape: TruckShape, voxel_m: float, noise_m: float, rng) -> tuple[np.ndarray, dict]:
+    """A truck scene as a TSDF gives it: one point per voxel edge its surface crosses, two of each point's three
+    coordinates on the voxel planes, the third where the (noisy) surface crosses the edge."""
+    from measure.normals import point_normals
+
+    pts, truth = make_truck_scene(shape, SceneSpec(spacing_m=0.5 * voxel_m, noise_m=noise_m, yaw_deg=0.0, ground_margin=0.3), rng=rng)
+    free = np.argmax(np.abs(point_normals(pts, 16)), axis=1)
+    rows = np.arange(len(pts))
+    q = np.round(pts / voxel_m) * voxel_m
+    q[rows, free] = pts[rows, free]
+    edge = np.round(q / voxel_m).astype(np.int64)
+    edge[rows, free] = -1 - free
+    _, first = np.unique(edge, axis=0, return_index=True)
+    return q[np.sort(first)], truth
+
+
+@pytest.mark.slow
+def test_fused_lattice_is_dithered_along_the_surfaces():
+    """On a cloud sitting on a voxel lattice aligned with the truck, the truck's points are dithered along their
+    surfaces, twice: the roof's points move across the width (its comb filled in) and not in height, the
+    walls' points not across the width; the readings are the draws' mean, within 1 % of the truth."""
+    v = 0.005
+    pts, truth = _fused_like(MODEL_TRUCK, v, 0.001, rng=4)
+    cfg = MeasureConfig(bootstrap=0)
+    fused = measure_points(pts, dataclasses.replace(cfg, lattice_dither=False))
+    m = measure_points(pts, cfg)
+    assert m.parameters["resolved"]["lattice_m"] == pytest.approx(v, rel=1e-6)
+    assert m.parameters["resolved"]["lattice_dithered"] and not fused.parameters["resolved"]["lattice_dithered"]
+    draws = m.details["lattice_draws_m"]
+    for d in DIMS:
+        assert len(draws[d]) == 2 and getattr(m, f"{d}_m") == pytest.approx(np.mean(draws[d]))
+    err = _rel_errors(m, truth)
+    assert max(err.values()) < 0.01, err
+    # Same points in the same order (the clustering does not see the dither): compare point by point.
+    a, b = fused.truck_xyz_ground, m.truck_xyz_ground
+    assert a.shape == b.shape
+    u2 = fused.details["axes_xy"]["width"]
+    across = a[:, :2] @ u2                                          # across the width
+    move = (b - a)[:, :2] @ u2
+    z = a[:, 2]
+    roof = z > z.max() - 2 * v
+    mid = (z < 0.8 * z.max()) & (z > 0.3 * z.max())
+    wall = mid & ((across < across.min() + v) | (across > across.max() - v))
+    assert roof.sum() > 1000 and wall.sum() > 1000
+    assert np.median(np.abs(move[roof])) > v / 8                    # along the roof, across the width: a quarter step
+    assert np.median(np.abs((b - a)[roof, 2])) < v / 20              # not in height (a normal from noisy points tilts)
+    assert np.median(np.abs(move[wall])) < v / 20                    # the wall stays where it was fused
