@@ -271,7 +271,8 @@ class Measurement:
             "rounded_top_drop": self.details.get("rounded_top_drop"),
             "body_brightness": self.details.get("body_brightness"),
             "bootstrap_std_m": self.details.get("bootstrap_std_m"),
-            # Each dimension read on each dither of a fused cloud's lattice (the reading is their mean), else null.
+            # Each dimension read on each dither of a fused cloud's lattice (the reading is their mean); null when not
+            # dithered (lattice_dither off, the default, or a cloud on no lattice).
             "lattice_draws_m": self.details.get("lattice_draws_m"),
         })
 
@@ -343,7 +344,8 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     t = time.perf_counter()
     res = _resolution(p, cfg, rng, source)
     # The width's density is read at half the point spacing, 0.2 of a fused cloud's voxel, where the voxel grid's
-    # planes ripple it (README, issue 12's thirty-seventh round): the truck's points are dithered below.
+    # planes ripple it (README, issue 12's thirty-seventh round): with lattice_dither set (opt-in, the 38th round)
+    # the truck's points are dithered below.
     lattice = point_lattice(p)
     timings["resolution"] = time.perf_counter() - t
 

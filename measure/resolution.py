@@ -43,7 +43,6 @@ def point_lattice(points: np.ndarray, min_repeats: int = 3, min_share: float = 0
     return float(np.median(gaps)) if gaps else None
 
 
-
 def lattice_dither(points: np.ndarray, lattice_m: float, rng=0, min_repeats: int = 3) -> np.ndarray:
     """Displacements (N, 3) that dither a fused cloud's lattice coordinates, each uniform within half a lattice step.
 
