@@ -504,12 +504,22 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
         return w1 - w0, rule, (w0, w1), dens, (walls if rule != "kde_two_peaks" else None), wider
     ds = None if side_counts is None else smooth_counts(side_counts, step, h)
     d = _wall_reach(noise, h)
+    fallback = []     # (width, edges): one side's outermost peak and the other side's extreme
     if len(right) and right.max() - lo >= cfg.wall_min_share * core:
         e1 = float(right.max()) if ds is None else _outer_peak(grid, ds, float(right.max()), d, +1)
-        return e1 - lo, "one_peak_plus_extreme", (lo, e1), dens, None, None
+        fallback.append((e1 - lo, (lo, e1)))
     if len(left) and hi - left.min() >= cfg.wall_min_share * core:
         e0 = float(left.min()) if ds is None else _outer_peak(grid, ds, float(left.min()), d, -1)
-        return hi - e0, "one_peak_plus_extreme", (e0, hi), dens, None, None
+        fallback.append((hi - e0, (e0, hi)))
+    if fallback:
+        # Both may pass: the narrower, as the side taken to its extreme is the one with the shorter tail
+        # beyond its peak (the order of the sides is the width axis' sign, arbitrary; taking the first read a
+        # model flatbed +33 % to a fringe's extreme, seed 2068 draw 22, its other side +17 %). Peaks on both
+        # sides, too close together against the extent to pass for the walls, are still the other reading
+        # the data allow (a fringe beyond one wall moves the extent out): the uncertainty spans it.
+        w, edges = min(fallback)
+        walls = float(right.max() - left.min()) if len(left) and len(right) else None
+        return w, "one_peak_plus_extreme", edges, dens, walls, None
     return float(extent), "robust_extent", (lo, hi), dens, None, None
 
 

@@ -491,21 +491,30 @@ def _fused_like(shape: TruckShape, voxel_m: float, noise_m: float, rng) -> tuple
 def test_fused_lattice_is_dithered_along_the_surfaces():
     """On a cloud sitting on a voxel lattice aligned with the truck, the truck's points are dithered along their
     surfaces, twice: the roof's points move across the width (its comb filled in) and not in height, the
-    walls' points not across the width; the readings are the draws' mean, within 1 % of the truth."""
+    walls' points not across the width. By default the width is the draws' mean and the length and height are
+    read as fused, exactly; with lattice_dither_all every dimension is the draws' mean; all within 1 % of the
+    truth."""
     v = 0.005
     pts, truth = _fused_like(MODEL_TRUCK, v, 0.001, rng=4)
-    cfg = MeasureConfig(bootstrap=0, lattice_dither=True)          # opt-in (README, issue 12's 38th round)
+    cfg = MeasureConfig(bootstrap=0)
     fused = measure_points(pts, dataclasses.replace(cfg, lattice_dither=False))
     m = measure_points(pts, cfg)
     assert m.parameters["resolved"]["lattice_m"] == pytest.approx(v, rel=1e-6)
     assert m.parameters["resolved"]["lattice_dithered"] and not fused.parameters["resolved"]["lattice_dithered"]
     draws = m.details["lattice_draws_m"]
+    assert set(draws) == {"width"} and len(draws["width"]) == 2 and m.width_m == pytest.approx(np.mean(draws["width"]))
+    assert m.width_m != fused.width_m
+    assert (m.length_m, m.height_m) == (fused.length_m, fused.height_m)
+    assert m.uncertainty_m["length"] == fused.uncertainty_m["length"] and m.rules["length"] == fused.rules["length"]
+    whole = measure_points(pts, dataclasses.replace(cfg, lattice_dither_all=True))
     for d in DIMS:
-        assert len(draws[d]) == 2 and getattr(m, f"{d}_m") == pytest.approx(np.mean(draws[d]))
-    err = _rel_errors(m, truth)
-    assert max(err.values()) < 0.01, err
+        dd = whole.details["lattice_draws_m"][d]
+        assert len(dd) == 2 and getattr(whole, f"{d}_m") == pytest.approx(np.mean(dd))
+    for r in (m, whole):
+        err = _rel_errors(r, truth)
+        assert max(err.values()) < 0.01, err
     # Same points in the same order (the clustering does not see the dither): compare point by point.
-    a, b = fused.truck_xyz_ground, m.truck_xyz_ground
+    a, b = fused.truck_xyz_ground, whole.truck_xyz_ground
     assert a.shape == b.shape
     u2 = fused.details["axes_xy"]["width"]
     across = a[:, :2] @ u2                                          # across the width
