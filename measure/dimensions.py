@@ -1342,12 +1342,14 @@ def _above_skirt(z: np.ndarray, top: float, share: float | None) -> np.ndarray |
 
 
 def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.0, config: DimensionConfig = DimensionConfig(), rng=0,
-                       body_brightness: float | None = None) -> dict:
+                       body_brightness: float | None = None, normals: np.ndarray | None = None) -> dict:
     """Length, width, height of a truck from its points in the ground frame.
 
     xyz: (N, 3) metres, z = height above the fitted ground. resolution_m: point spacing. body_brightness: the
     truck's median luma over the ground's (``measure.pipeline.body_brightness``), None when unknown.
-    noise_m: reconstruction noise (e.g. the ground fit's RMS), used in the uncertainties.
+    noise_m: reconstruction noise (e.g. the ground fit's RMS), used in the uncertainties. normals: the points'
+    unit normals (N, 3), ``point_normals(xyz, config.normal_neighbours)`` when None (given: the same surfaces'
+    normals computed once for several readings of them, ``measure.pipeline``'s lattice dither).
     Returns a dict with ``length_m``, ``width_m``, ``height_m``, ``uncertainty_m``, ``rules``,
     ``bandwidths_m``, the PCA axes and everything the plots need (densities, peaks, rectangle).
     """
@@ -1355,9 +1357,10 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     xyz = np.asarray(xyz, dtype=np.float64)
     xy = xyz[:, :2]
     z = xyz[:, 2]
-    normals = None
-    if (config.wall_facing_cos is not None or config.roof_facing_cos is not None or config.heading_wall_max_nz is not None
-            or config.end_facing_cos is not None):
+    if (config.wall_facing_cos is None and config.roof_facing_cos is None and config.heading_wall_max_nz is None
+            and config.end_facing_cos is None):
+        normals = None
+    elif normals is None:
         normals = point_normals(xyz, config.normal_neighbours)
     walls = None if config.heading_wall_max_nz is None else np.abs(normals[:, 2]) < config.heading_wall_max_nz
     c0, u_pca, u1, u2, turn_deg = _ground_axes(xy, resolution_m, walls)

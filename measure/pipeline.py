@@ -389,19 +389,25 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     if colors_rgb is not None and len(colors_rgb) == len(p):
         brightness = body_brightness(colors_rgb[g.keep][in_truck], colors_rgb[~g.keep])
     dithered = lattice is not None and cfg.lattice_dither and cfg.lattice_dither_draws > 0
-    # As fused first: the length and height are then read exactly as without the dither (same bootstrap stream).
-    dims = None if dithered and cfg.lattice_dither_all else \
-        measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng, body_brightness=brightness)
     if dithered:
-        draws = _surface_dither(above[in_truck], truck, R, lattice, dcfg.normal_neighbours, cfg.lattice_dither_draws,
-                                cfg.seed if rng is None else rng)
+        from measure.normals import point_normals
+
+        # The surfaces' normals, once: the dither moves the points along them, and every reading uses them
+        # (three readings of the cloud: ~1 s each on a model truck's 10^5 points).
+        normals = point_normals(truck, dcfg.normal_neighbours)
+        # As fused first: the length and height are then read exactly as without the dither (same bootstrap stream).
+        dims = None if cfg.lattice_dither_all else \
+            measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng, body_brightness=brightness, normals=normals)
+        draws = _surface_dither(above[in_truck], R, lattice, normals, cfg.lattice_dither_draws, cfg.seed if rng is None else rng)
         on_draws = _mean_of_draws([measure_dimensions(truck + d, res, noise_m=noise_m, config=dcfg, rng=rng,
-                                                      body_brightness=brightness) for d in draws])
+                                                      body_brightness=brightness, normals=normals) for d in draws])
         if cfg.lattice_dither_all:
             dims = on_draws
             truck = truck + draws[0]     # the points the details (densities, plots) were read from
         else:
             dims = _with_dimension(dims, on_draws, "width")
+    else:
+        dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng, body_brightness=brightness)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
 
@@ -421,27 +427,25 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     )
 
 
-def _surface_dither(points_in: np.ndarray, points_g: np.ndarray, R: np.ndarray, lattice_m: float, k: int, draws: int,
+def _surface_dither(points_in: np.ndarray, R: np.ndarray, lattice_m: float, normals: np.ndarray, draws: int,
                     rng) -> list[np.ndarray]:
     """Displacements (N, 3), ground frame, that dither a fused truck's lattice coordinates along its surfaces: draws of them.
 
-    points_in: the truck's points in the input (fusion) frame, where the lattice lies; points_g: the same in the
-    ground frame (rotation R from the input frame); lattice_m: the lattice (m); k: neighbours of a normal; rng:
-    seed. Each displacement is ``measure.resolution.lattice_dither``'s less its part along the point's surface
-    normal: the comb a surface makes along the lattice is filled in, while a wall or roof stays as thin as it was
-    fused (the whole dither thickened them: on tuning seeds 2062-2066 the p90 of |error| over length, width and
-    height went 3.44 -> 3.64 %; along the surfaces 3.47 %).
+    points_in: the truck's points in the input (fusion) frame, where the lattice lies; R: the rotation from the
+    input frame to the ground frame; lattice_m: the lattice (m); normals: the points' unit normals (ground frame);
+    rng: seed. Each displacement is ``measure.resolution.lattice_dither``'s less its part along the point's
+    surface normal: the comb a surface makes along the lattice is filled in, while a wall or roof stays as thin
+    as it was fused (the whole dither thickened them: on tuning seeds 2062-2066 the p90 of |error| over length,
+    width and height went 3.44 -> 3.64 %; along the surfaces 3.47 %).
     """
-    from measure.normals import point_normals
     from measure.resolution import lattice_dither
 
     # Its own stream: the bootstrap draws from the seed itself.
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng([int(rng), 38])
-    n = point_normals(points_g, k)
     out = []
     for _ in range(draws):
         d = lattice_dither(points_in, lattice_m, rng=gen) @ R.T
-        out.append(d - np.sum(d * n, axis=1, keepdims=True) * n)
+        out.append(d - np.sum(d * normals, axis=1, keepdims=True) * normals)
     return out
 
 
