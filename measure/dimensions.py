@@ -1479,9 +1479,12 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
     out["bandwidth_rules"] = bw_rules
     out["edges_m"] = ends
     out["densities"] = dens_out
-    # Fitted rectangle in the ground frame (corners, xy) for the top view.
-    a0, a1 = ends["length"]
-    b0, b1 = ends["width"]
-    corners = np.array([c0 + u1 * s + u2 * t for s, t in ((a0, b0), (a1, b0), (a1, b1), (a0, b1))])
-    out["rectangle_xy_m"] = corners
+    out["rectangle_xy_m"] = fitted_rectangle(c0, u1, u2, ends)
     return out
+
+
+def fitted_rectangle(origin_xy: np.ndarray, length_axis: np.ndarray, width_axis: np.ndarray, edges: dict) -> np.ndarray:
+    """The fitted rectangle's corners (4, 2) in the ground frame (m), for the top view: origin_xy plus the edges (m,
+    ``edges["length"]``, ``edges["width"]``) along the unit length and width axes."""
+    (a0, a1), (b0, b1) = edges["length"], edges["width"]
+    return np.array([origin_xy + length_axis * s + width_axis * t for s, t in ((a0, b0), (a1, b0), (a1, b1), (a0, b1))])
