@@ -401,7 +401,8 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
             measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng, body_brightness=brightness, normals=normals)
         draws = _surface_dither(above[in_truck], R, lattice, normals, cfg.lattice_dither_draws, cfg.seed if rng is None else rng)
         on_draws = _mean_of_draws([measure_dimensions(truck + d, res, noise_m=noise_m, config=dcfg, rng=rng,
-                                                      body_brightness=brightness, normals=normals) for d in draws])
+                                                      body_brightness=brightness, normals=normals) for d in draws],
+                                  ("length", "width", "height") if cfg.lattice_dither_all else ("width",))
         if cfg.lattice_dither_all:
             dims = on_draws
             truck = truck + draws[0]     # the points the details (densities, plots) were read from
@@ -450,8 +451,9 @@ def _surface_dither(points_in: np.ndarray, R: np.ndarray, lattice_m: float, norm
     return out
 
 
-def _mean_of_draws(runs: list[dict]) -> dict:
-    """One reading from the dimensions of several dithers of a cloud: the first's details, the mean of the readings.
+def _mean_of_draws(runs: list[dict], dims=("length", "width", "height")) -> dict:
+    """One reading from the dimensions of several dithers of a cloud: the first's details, the mean of the readings
+    of ``dims`` (the others: the first's).
 
     Where one dither of the lattice moves a reading from the next (16 of 193 tuning clouds' widths by more than
     2 %), the reading rests on where the voxel planes fell, not on the truck: their spread (sample standard
@@ -462,7 +464,7 @@ def _mean_of_draws(runs: list[dict]) -> dict:
         return out
     out["uncertainty_m"] = dict(out["uncertainty_m"])
     out["lattice_draws_m"] = {}
-    for d in ("length", "width", "height"):
+    for d in dims:
         vals = np.array([float(r[f"{d}_m"]) for r in runs])
         out[f"{d}_m"] = float(vals.mean())
         out["lattice_draws_m"][d] = vals.tolist()
