@@ -53,12 +53,15 @@ def remeasure(run: Path, scene: Path, overrides: dict | None = None) -> dict:
     gated = bool(failing)
     # Judged as `bench` judges a full-scale draw (a model's verdict is not applicable).
     expected = (truth.get("over_limit_expectation") or {}).get("verdict")
-    right = (verdict_matches(expected, res["verdict"], {d: truth[f"{d}_m"] for d in DIMS})
-             if expected in ("over-limit", "within-limits") else None)
+    judged = expected in ("over-limit", "within-limits")
+    true = {d: truth[f"{d}_m"] for d in DIMS}
+    right = verdict_matches(expected, res["verdict"], true) if judged else None
+    sound = verdict_matches(expected, res["verdict"], true, undecided="interval-covers-truth") if judged else None
     return {"name": run.name, "error_pct": err, "z": z, "gated": gated, "failing_checks": failing,
             "rules": res.get("rules", {}), "rounded_top_drop": res.get("rounded_top_drop"),
             "body_brightness": res.get("body_brightness"),
-            "width_walls_m": res.get("width_walls_m"), "verdict": res["verdict"]["overall"], "verdict_right": right}
+            "width_walls_m": res.get("width_walls_m"), "verdict": res["verdict"]["overall"], "verdict_right": right,
+            "verdict_sound": sound}
 
 
 def main(argv=None) -> int:
@@ -104,9 +107,11 @@ def main(argv=None) -> int:
               f"H {E[:, 2].mean():.2f} all {E.mean():.2f} %; truth in +-2 sigma L {100 * np.mean(Z[:, 0] <= 2):.0f} "
               f"W {100 * np.mean(Z[:, 1] <= 2):.0f} H {100 * np.mean(Z[:, 2] <= 2):.0f} all {100 * np.mean(Z <= 2):.1f} %"
               + (f" (not gated: {100 * np.mean(Z[ug] <= 2):.1f} % of {ug.sum()} draws)" if ug.any() else ""))
-        judged = [r["verdict_right"] for r in ok if r["verdict_right"] is not None]
+        judged = [r for r in ok if r["verdict_right"] is not None]
         if judged:
-            print(f"full-scale verdicts of the measured draws: {sum(judged)} of {len(judged)} right")
+            print(f"full-scale verdicts of the measured draws: {sum(r['verdict_right'] for r in judged)} of {len(judged)} right "
+                  f"(undecided only with the truth within 2 sigma of a limit), {sum(r['verdict_sound'] for r in judged)} sound "
+                  "(undecided with the truth inside its own 2 sigma)")
         if ug.any():
             Eu = E[ug]
             print("draws no data-quality gate refused, absolute error mean / median / p90 / max: " + "; ".join(

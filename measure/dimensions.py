@@ -229,6 +229,14 @@ class DimensionConfig:
     ledge_min_cover: float = 0.5
     ledge_walls_quantile: float = 0.75  # the walls' edge a ledge must stand beyond: this quantile of the upper
                                        # slices' edges (the median let a model box's wall foot, 3 mm out, pass)
+    ledge_below_blurs: float | None = 0.0  # ... and a ledge's slice must stand out of a lower slice too, its
+                                       # edge more than this many blurs beyond that slice's (0: by any amount):
+                                       # a deck sits on a narrower chassis and wheels, while a run of slices
+                                       # widening down to the lowest is the walls' foot flaring into the
+                                       # ground (fusion rounds the corner; three false ledges of seed 2070 read
+                                       # W +11 to +15 %, each the lowest slice of such a run; real decks on
+                                       # tuning seeds stood 0.4-4.1 blurs out of a lower slice). None: any slice
+                                       # (the thirty-sixth round)
     dark_body_max_brightness: float | None = 0.2  # a body whose median luma is below this share of the ground's
                                        # (``body_brightness``) has its height from its top 0.5 % of points
                                        # (``dark_top_99.5``) instead of a roof level. Why: a dark roof's depth
@@ -903,7 +911,9 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
     up to 0.95 of it, in 0.05 steps). A side has a ledge where its low slices' outermost edge, less that
     offset, lies beyond the side's reading, and that edge beyond the walls' own (the ``ledge_walls_quantile``
     of the upper slices' edges), both by more than ``ledge_blurs`` blurs: a plain box's low slices stand where
-    its walls do. The side moves out to it. The caller leaves a rounded flank (``curved_flank_vertex``, widest
+    its walls do. Only slices standing out of a lower slice by ``ledge_below_blurs`` blurs count: a deck sits on
+    a narrower chassis, a wall's foot flaring into the ground widens down to the lowest slice. The side moves
+    out to it. The caller leaves a rounded flank (``curved_flank_vertex``, widest
     at its own height) alone. The reading before becomes the other reading the uncertainty spans
     (``width_walls_m``); the face gates still look for the walls at its edges.
     """
@@ -915,8 +925,11 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
         sel = (o > -0.25 * width) & (o < 0.2 * width)
         o_s, z_s, a_s = o[sel], z[sel], a[sel]
         upper = slice_edges(o_s, z_s, a_s, 0.5 * top, 0.95 * top, 0.05 * top, blur, a_bins)
-        low = [r for r in slice_edges(o_s, z_s, a_s, cfg.flank_min_height * top, cfg.ledge_max_height * top,
-                                      cfg.ledge_slice_share * top, blur, a_bins) if r[2] >= cfg.ledge_min_cover]
+        rows = slice_edges(o_s, z_s, a_s, cfg.flank_min_height * top, cfg.ledge_max_height * top,
+                           cfg.ledge_slice_share * top, blur, a_bins)   # from the lowest slice up
+        low = [r for i, r in enumerate(rows) if r[2] >= cfg.ledge_min_cover
+               and (cfg.ledge_below_blurs is None
+                    or (i > 0 and min(q[1] for q in rows[:i]) < r[1] - cfg.ledge_below_blurs * blur))]
         if not upper or not low:
             continue
         edge_low = max(r[1] for r in low)

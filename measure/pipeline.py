@@ -127,6 +127,9 @@ class MeasureConfig:
     ledge_max_height: float = 0.5            # ... slices up to this share of the top
     ledge_min_cover: float = 0.5             # ... a slice's outer part spanning this share of the length
     ledge_walls_quantile: float = 0.75       # ... and standing beyond this quantile of the upper slices' edges
+    ledge_below_blurs: float | None = 0.0    # ... and beyond a lower slice's edge by more than this many blurs (a deck
+                                             # on its chassis, not a wall's foot flaring into the ground; 0: by any
+                                             # amount; None: any slice)
     wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see
@@ -206,7 +209,7 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
         if want_int and not float(v).is_integer():
             raise ConfigError(f"{where}: {k} must be an integer, got {v!r}")
         v = int(v) if want_int else float(v)
-        if not np.isfinite(v) or (v < 0) or (v == 0 and k not in ("seed", "bootstrap") and not isinstance(d, int)):
+        if not np.isfinite(v) or (v < 0) or (v == 0 and k not in ("seed", "bootstrap", "ledge_below_blurs") and not isinstance(d, int)):
             raise ConfigError(f"{where}: {k} must be a positive number, got {v!r}")
         if k in ("roof_cells_quantile", "ledge_walls_quantile") and v > 1:
             raise ConfigError(f"{where}: {k} is a quantile, at most 1, got {v!r}")

@@ -85,7 +85,18 @@ def bench_one(preset: str, scene_dir: str, run_dir: str, seed: int, frames: int 
 _EXPECTED_TO_VERDICT = {"over-limit": "over", "within-limits": "within", "not-applicable": "not-applicable"}
 
 
-def verdict_matches(expected: str | None, verdict: dict | str | None, truth_m: dict | None = None) -> bool | None:
+# How an ``undecided`` dimension is judged (``verdict_matches``): "truth-near-limit", issue 12's letter, counts it
+# right only where the truth lies within the measurement's k sigma of the limit; "interval-covers-truth" counts it
+# right where the reported +-k sigma interval holds the truth (it holds the limit by construction). With a calibrated
+# sigma the first is a coin toss for a truth near k sigma from the limit: a measurement erring towards the limit by
+# any amount makes it undecided (P = 0.5 at exactly k sigma), so a check built on it depends on the error's sign, not
+# on whether the verdict was honest. The second fails only a dishonest interval, and a confident verdict (over or
+# within) on the wrong side fails both.
+UNDECIDED_RULES = ("truth-near-limit", "interval-covers-truth")
+
+
+def verdict_matches(expected: str | None, verdict: dict | str | None, truth_m: dict | None = None,
+                    undecided: str = "truth-near-limit") -> bool | None:
     """Whether the measured verdict is right for the scene's truth (None: the truth expects nothing).
 
     expected: truth.json's over-limit expectation ("over-limit", "within-limits", "not-applicable").
@@ -94,8 +105,12 @@ def verdict_matches(expected: str | None, verdict: dict | str | None, truth_m: d
     With the dimensions and the truth, every dimension's verdict must be right: "over" only above
     the limit, "within" only at or below it, and "undecided" only where the true value lies within
     the measurement's own k-sigma interval of the limit (a truck built exactly to a limit: no
-    measurement this precise can tell, and "undecided" is the honest answer, not an error).
+    measurement this precise can tell, and "undecided" is the honest answer, not an error). undecided: how an
+    ``undecided`` dimension is judged (``UNDECIDED_RULES``): with "interval-covers-truth" it is right where the true
+    value lies within the measurement's own k-sigma interval.
     """
+    if undecided not in UNDECIDED_RULES:
+        raise ValueError(f"undecided={undecided!r}: one of {UNDECIDED_RULES}")
     if expected is None:
         return None
     overall = verdict.get("overall") if isinstance(verdict, dict) else verdict
@@ -108,9 +123,10 @@ def verdict_matches(expected: str | None, verdict: dict | str | None, truth_m: d
         lim, status, true = e.get("limit_m"), e.get("verdict"), truth_m.get(d)
         if lim is None or true is None or status == "no-limit":
             continue
-        u = e.get("uncertainty_m")
+        u, value = e.get("uncertainty_m"), e.get("value_m")
+        ref = lim if undecided == "truth-near-limit" else value
         right = {"over": true > lim, "within": true <= lim,
-                 "undecided": u is not None and abs(true - lim) <= k * u}.get(status, False)
+                 "undecided": u is not None and ref is not None and abs(true - ref) <= k * u}.get(status, False)
         if not right:
             return False
     return overall == want or (overall == "undecided" and want in ("within", "over"))
@@ -349,13 +365,13 @@ def envelope_row(result: dict, spec, truth: dict | None = None) -> dict:
                  "ground_class": spec.scene.ground_class, "second_vehicle": None if spec.scene.second is None else spec.scene.second.relation},
         "factors": envelope_factors(spec), "truth_m": true,
         "measured_m": None, "sigma_m": None, "error_pct": None, "within_2sigma": None,
-        "verdict": None, "expected_verdict": None, "verdict_right": None,
+        "verdict": None, "expected_verdict": None, "verdict_right": None, "verdict_sound": None,
         "time_s": result.get("time_s"), "run_dir": result.get("out_dir"),
     }
     if t.scale == "full":
         row["expected_verdict"] = ((truth or {}).get("over_limit_expectation") or {}).get("verdict") or _expected_verdict(t)
     if reason is not None:
-        row["verdict_right"] = False if t.scale == "full" else None
+        row["verdict_right"] = row["verdict_sound"] = False if t.scale == "full" else None
         return row
     meas = {d: float(result[f"{d}_m"]) for d in DIMS}
     sig = {d: (result.get("uncertainty_m") or {}).get(d) for d in DIMS}
@@ -366,6 +382,7 @@ def envelope_row(result: dict, spec, truth: dict | None = None) -> dict:
     row["verdict"] = v.get("overall") if isinstance(v, dict) else v
     if t.scale == "full":
         row["verdict_right"] = bool(verdict_matches(row["expected_verdict"], v, true))
+        row["verdict_sound"] = bool(verdict_matches(row["expected_verdict"], v, true, undecided="interval-covers-truth"))
     return row
 
 
@@ -398,6 +415,7 @@ def envelope_summary(rows: Sequence[dict]) -> dict:
     per_dim["overall"] = _stats(rows, DIMS)
     full = [r for r in rows if r["spec"]["scale"] == "full"]
     verdicts = {"n_full_scale": len(full), "right": sum(bool(r["verdict_right"]) for r in full),
+                "sound": sum(bool(r.get("verdict_sound")) for r in full),
                 "wrong": [r["name"] for r in full if r["ok"] and not r["verdict_right"]],
                 "failed": [r["name"] for r in full if not r["ok"]]}
     factors: dict[str, dict] = {}
@@ -437,7 +455,10 @@ def envelope_markdown(meta: dict, summary: dict, rows: Sequence[dict]) -> str:
         lines.append(f"| {d} | {_stats_cells(s)} |")
     v = summary["verdicts"]
     lines += ["", f"Full-scale verdicts (cn-2016-62): {v['right']} of {v['n_full_scale']} right"
-              + (f"; wrong: {', '.join(v['wrong'])}" if v["wrong"] else "") + (f"; failed: {', '.join(v['failed'])}" if v["failed"] else ""), "",
+              + (f"; wrong: {', '.join(v['wrong'])}" if v["wrong"] else "") + (f"; failed: {', '.join(v['failed'])}" if v["failed"] else "")
+              + " (`undecided` right only with the truth within 2σ of the limit); "
+              + f"{v.get('sound', 0)} of {v['n_full_scale']} sound (`over` and `within` on the truth's side, `undecided` with "
+              "the truth inside its own ±2σ)", "",
               "## By factor", "", "| factor | level | " + head[2:], "|---" * 10 + "|"]
     for name, levels in summary["by_factor"].items():
         for lv, s in levels.items():

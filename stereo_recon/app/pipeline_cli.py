@@ -310,7 +310,7 @@ def _cmd_bench_random(args) -> int:
     print(f"{summary['draws']} draws, {summary['failed_draws']} failed; overall mean {o['mean_abs_pct'] if o['mean_abs_pct'] is not None else float('nan'):.2f}%, "
           f"p90 {o['p90_abs_pct'] if o['p90_abs_pct'] is not None else float('nan'):.2f}%, max "
           f"{o['max_abs_pct'] if o['max_abs_pct'] is not None else float('nan'):.2f}%, truth in ±2σ "
-          f"{100 * (o['within_2sigma'] or 0):.0f}%; full-scale verdicts {v['right']}/{v['n_full_scale']} right")
+          f"{100 * (o['within_2sigma'] or 0):.0f}%; full-scale verdicts {v['right']}/{v['n_full_scale']} right, {v['sound']}/{v['n_full_scale']} sound")
     print(f"tables: {args.out / 'envelope.md'} {args.out / 'envelope.json'} {args.out / 'envelope.png'}")
     return 0 if summary["failed_draws"] == 0 else 1
 

@@ -157,6 +157,10 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
         config_from_dict({"end_step_slices": 2.5})
     # So does the low-ledge rule (a flatbed's deck in its own height slice).
     assert config_from_dict({"ledge_blurs": None, "ledge_min_cover": 0.6}).ledge_min_cover == 0.6
+    assert config_from_dict({"ledge_below_blurs": None}).ledge_below_blurs is None
+    assert config_from_dict({"ledge_below_blurs": 0}).ledge_below_blurs == 0.0
+    with pytest.raises(ConfigError, match="ledge_below_blurs"):
+        config_from_dict({"ledge_below_blurs": -1})
     with pytest.raises(ConfigError, match="ledge_slice_share"):
         config_from_dict({"ledge_slice_share": -0.1})
     with pytest.raises(ConfigError, match="ledge_walls_quantile is a quantile, at most 1"):

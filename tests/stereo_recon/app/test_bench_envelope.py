@@ -74,15 +74,15 @@ def test_full_scale_verdicts_are_judged_against_the_truth():
                  "verdict": "over" if true[d] > limits[d] else "within"} for d in limits}
     overall = "over" if any(true[d] > limits[d] for d in limits) else "within"
     right = envelope_row(_result(f, (0, 0, 0), verdict={"overall": overall, "dimensions": exact, "k_sigma": 2.0}), f)
-    assert right["verdict_right"] is True
+    assert right["verdict_right"] is True and right["verdict_sound"] is True
     flipped = {d: {**e, "verdict": "within" if e["verdict"] == "over" else "over"} for d, e in exact.items()}
     wrong = envelope_row(_result(f, (0, 0, 0), verdict={"overall": "over" if overall == "within" else "within",
                                                           "dimensions": flipped, "k_sigma": 2.0}), f)
-    assert wrong["verdict_right"] is False
+    assert wrong["verdict_right"] is False and wrong["verdict_sound"] is False
     failed = envelope_row(_result(f, ok=False, error="x"), f)
-    assert failed["verdict_right"] is False
+    assert failed["verdict_right"] is False and failed["verdict_sound"] is False
     s = envelope_summary([right, wrong, failed])
-    assert s["verdicts"]["n_full_scale"] == 3 and s["verdicts"]["right"] == 1
+    assert s["verdicts"]["n_full_scale"] == 3 and s["verdicts"]["right"] == 1 and s["verdicts"]["sound"] == 1
     assert s["verdicts"]["wrong"] == [f.name] and s["verdicts"]["failed"] == [f.name]
 
 

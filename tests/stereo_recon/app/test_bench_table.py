@@ -78,6 +78,27 @@ def test_verdict_is_judged_per_dimension_against_the_truth(true_h, expected, ver
     assert verdict_matches(expected, verdict, {"length": 12.0, "width": 2.5, "height": true_h}) is right
 
 
+@pytest.mark.parametrize(
+    "true_h, expected, verdict, strict, sound",
+    [
+        # 2.38 m-like knife edge on the height: truth 3.83, 0.170 m = 2.01 sigma under the limit, measured 3.872 +- 2 x
+        # 0.0845: the limit lies inside the interval (undecided), and so does the truth: wrong by the letter, sound
+        (3.83, "within-limits", _verdict(3.872, 0.0845, "undecided", "undecided"), False, True),
+        # undecided although its own interval misses the truth (3.9 true, 3.99 +- 2 x 0.01): wrong either way
+        (3.9, "within-limits", _verdict(3.99, 0.010, "undecided", "undecided"), False, False),
+        # a confident verdict on the wrong side stays wrong, whatever its interval
+        (4.01, "over-limit", _verdict(3.97, 0.030, "within", "within"), False, False),
+        (4.3, "over-limit", _verdict(4.29, 0.010, "over", "over"), True, True),
+    ],
+)
+def test_an_undecided_verdict_is_sound_when_its_interval_holds_the_truth(true_h, expected, verdict, strict, sound):
+    truth = {"length": 12.0, "width": 2.5, "height": true_h}
+    assert verdict_matches(expected, verdict, truth) is strict
+    assert verdict_matches(expected, verdict, truth, undecided="interval-covers-truth") is sound
+    with pytest.raises(ValueError, match="undecided"):
+        verdict_matches(expected, verdict, truth, undecided="maybe")
+
+
 def test_study_sweeps_the_paper_values_and_scores_our_default(tmp_path):
     """The d_h study re-measures clouds over 0.06-0.08 m and adds our scale-free default as its own row."""
     import numpy as np
