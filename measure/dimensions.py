@@ -235,7 +235,7 @@ class DimensionConfig:
                                        # widening down to the lowest is the walls' foot flaring into the
                                        # ground (fusion rounds the corner; three false ledges of seed 2070 read
                                        # W +11 to +15 %, each the lowest slice of such a run; real decks on
-                                       # tuning seeds stood 0.4-4.1 blurs out of a lower slice). None: any slice
+                                       # tuning seeds stood 0.4-4.5 blurs out of a lower slice). None: any slice
                                        # (the thirty-sixth round)
     dark_body_max_brightness: float | None = 0.2  # a body whose median luma is below this share of the ground's
                                        # (``body_brightness``) has its height from its top 0.5 % of points
