@@ -110,6 +110,9 @@ class MeasureConfig:
     shoulder_fringe_height: float | None = 0.75  # a side's outside points mostly at or above this share of the top
                                              # are a fringe under the roof's edge: no shoulder, a reading the
                                              # uncertainty spans (None: off; see DimensionConfig)
+    shoulder_skirt_height: float | None = 0.15  # ... and mostly below this share of the top the ground's skirt fused to
+                                             # the walls' foot: no shoulder either, a reading the uncertainty spans
+                                             # (None: off; see DimensionConfig)
     end_facing_cos: float | None = 0.7       # each end of the length moved in to its own face's points when the
                                              # peak of all points lies beyond it (None: the paper's peaks; see
                                              # measure.dimensions.DimensionConfig)
