@@ -112,6 +112,20 @@ def cuboid(xy: np.ndarray, z: np.ndarray) -> dict:
             "volume_m3": length * width * max(height, 0.0), "n_points": int(len(z))}
 
 
+def _min_width(xy: np.ndarray) -> float:
+    """The narrowest width (m) of a footprint's points xy (N, 2) over all directions (0.5 degree steps, on the
+    convex hull): a rotating-calipers width, which a partial footprint's skewed PCA axes do not change."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        h = xy[ConvexHull(xy).vertices]
+    except (QhullError, ValueError):
+        return 0.0    # too few points or all in a line
+    ang = np.radians(np.arange(0.0, 180.0, 0.5))
+    ext = h @ np.stack([np.cos(ang), np.sin(ang)])
+    return float((ext.max(axis=0) - ext.min(axis=0)).min())
+
+
 def _footprint_distance(box: dict, pt: np.ndarray) -> float:
     u1 = box["axis_xy"]
     u2 = np.array([-u1[1], u1[0]])
@@ -140,7 +154,7 @@ def _cluster_ranges(xyz_ground: np.ndarray, labels: np.ndarray, u1: np.ndarray, 
 
 def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, gap_m: float, min_points: int,
                       min_width_overlap: float = 0.6, alongside_max_angle_deg: float = 20.0,
-                      alongside_min_length_to_width: float = 2.0) -> list[int]:
+                      alongside_min_length_to_width: float = 2.0, apart_beside: bool = True) -> list[int]:
     """Labels of clusters that continue the chosen truck along its length (a cab across the gap
     to its box, when nothing joins them in the cloud).
 
@@ -158,6 +172,16 @@ def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, g
     model tanker came out as its rear 0.87 m and its front 0.60 m, 10 degrees apart, whose widths
     overlapped 0.59 in the rear part's axes and wholly in their joined ones; the front 0.22 m was
     left out (L -18 %). Short parts (a cab's scraps, a wall's patches) keep the chosen cluster's axes.
+    Either way a long part (at least ``alongside_min_length_to_width`` x as long as wide and half as long as
+    the chosen one: a vehicle's length, not a wall's patch) does not join when the two stand apart: their
+    narrowest width together (over all directions of the ground plane) exceeds their own narrowest widths
+    added (``apart_beside``; False: no such test). Pieces of one truck overlap or touch across it (cut along
+    it, or its two halves), a vehicle parked beside it leaves a gap. Narrowest widths, not PCA boxes: a
+    partial cluster's PCA axes are skewed by its shape. On seed 2072's draw 10 a weakly seen model
+    semi-trailer came out as a sparse partial cluster whose PCA axes ran 18 degrees off its neighbour's, 0.4 m
+    beside it: the two overlapped in the joined axes, joined, and the width read the pair's (+197 %, 4
+    sigma); together they are 1.22 m wide at their narrowest, their own narrowest widths 0.49 + 0.50 m (the
+    same seed's draw 32, a model box cut into two pieces 0.21 and 0.23 m wide: 0.42 m together, joined).
     """
     members = {chosen}
     pts = xyz_ground[labels == chosen]
@@ -185,6 +209,20 @@ def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, g
         narrow = max(min(np.ptp(cb), np.ptp(tb)), 1e-12)
         return overlap / narrow >= min_width_overlap and max(ca.min() - ta.max(), ta.min() - ca.max()) <= gap_m
 
+    chosen_width = _min_width(pts[:, :2]) if apart_beside else 0.0
+
+    def stands_apart(lab: int) -> bool:
+        # A long part (a vehicle's length: at least half the chosen one's, not a cab, a scrap or a wall's
+        # patch) standing apart from the chosen one: together wider (their narrowest width) than the two
+        # widths added, which pieces of one truck, overlapping or touching across it, never are.
+        if not apart_beside:
+            return False
+        q = xyz_ground[labels == lab, :2]
+        own = cuboid(q, np.zeros(len(q)))
+        if own["length_m"] < max(alongside_min_length_to_width * own["width_m"], 0.5 * box["length_m"]):
+            return False
+        return _min_width(np.concatenate([pts[:, :2], q])) > _min_width(q) + chosen_width
+
     changed = True
     while changed:
         changed = False
@@ -194,8 +232,8 @@ def merge_truck_parts(xyz_ground: np.ndarray, labels: np.ndarray, chosen: int, g
             gap = max(a0 - A1, A0 - a1)
             if h > 1.3 * H:
                 continue
-            if (overlap / narrow >= min_width_overlap and gap <= gap_m) or (
-                    long_chosen and gap <= gap_m and overlap > 0 and joins_alongside(lab)):
+            if ((overlap / narrow >= min_width_overlap and gap <= gap_m) or (
+                    long_chosen and gap <= gap_m and overlap > 0 and joins_alongside(lab))) and not stands_apart(lab):
                 members.add(lab)
                 A0, A1, B0, B1, H = min(A0, a0), max(A1, a1), min(B0, b0), max(B1, b1), max(H, h)
                 del rng_of[lab]

@@ -432,6 +432,32 @@ def test_a_part_overlapping_the_truck_along_its_length_joins_it_though_its_own_a
     assert merge_truck_parts(xyz, labels, 0, 15 * sp, 60) == [0, 1]
 
 
+def test_a_vehicle_beside_a_partial_truck_is_not_joined_to_it():
+    """Seed 2072's draw 10: a weakly seen model semi-trailer (2.39 x 0.46 m) came out of fusion as a sparse
+    partial cluster, its as-tall neighbour beside it as a dense one overlapping it along the length; the
+    neighbour joined it and the width read the pair's (+197 %, 4 sigma). Here the truck's cluster is the part
+    of its footprint seen (a triangle: its PCA axes skewed 6 degrees), the neighbour 2.03 x 0.53 m parked
+    0.25 m beside it: without the test it joins (``apart_beside=False``), with it not: together they are
+    1.10 m wide at their narrowest, their own narrowest widths 0.44 + 0.53 m. The other half of the
+    truck's footprint, a piece of the same body, still joins (0.46 m together)."""
+    from measure.truck import merge_truck_parts
+
+    rng = np.random.default_rng(0)
+    L, W = 2.39, 0.456
+    x, y = rng.uniform(0, L, 32_000), -rng.uniform(0, W, 32_000)
+    seen = y > -W * (1 - x / L)
+    z = rng.uniform(0.07, 0.7, 32_000)
+    truck = np.column_stack([x, y, z])[seen][:8000]
+    other_half = np.column_stack([x, y, z])[~seen][:8000]
+    beside = np.column_stack([rng.uniform(0.6, 2.63, 30_000), rng.uniform(0.25, 0.78, 30_000), rng.uniform(0.07, 0.7, 30_000)])
+    xyz = np.concatenate([truck, beside])
+    labels = np.r_[np.zeros(len(truck), int), np.ones(len(beside), int)]
+    assert merge_truck_parts(xyz, labels, 0, 0.02, 60, apart_beside=False) == [0, 1]   # the old reading
+    assert merge_truck_parts(xyz, labels, 0, 0.02, 60) == [0]
+    halves = np.concatenate([truck, other_half])
+    assert merge_truck_parts(halves, np.r_[np.zeros(len(truck), int), np.ones(len(other_half), int)], 0, 0.02, 60) == [0, 1]
+
+
 @pytest.mark.slow
 def test_a_cab_reconstructed_in_scraps_joins_the_truck():
     """Tuning draw 2059/19: a full-scale tanker's cab, seen obliquely on a partial orbit, came out as some 60
