@@ -133,7 +133,7 @@ class DimensionConfig:
                                        # foot (fusion rounds the corner into the ground; width_min_height), not a
                                        # wider part: a deck or a cab stands higher. Why: seed 2071's widest
                                        # misses, two model boxes at +13.9 / +13.6 % (each 1.3-1.5 sigma), read
-                                       # a shoulder of points 60-80 % of which lay under 0.15 of the top.
+                                       # a shoulder of points 75-76 % of which lay under 0.15 of the top.
                                        # Re-measured (tuning seeds): 2071 mean 1.65 -> 1.49 %, max 13.92 ->
                                        # 10.13 % (those two +5.60 / +4.42 %); 2070 1.57 -> 1.62 % (three
                                        # tankers whose skirt shoulder had landed near their widest line now

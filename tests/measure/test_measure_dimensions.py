@@ -744,7 +744,7 @@ def test_the_grounds_skirt_at_a_walls_foot_is_no_shoulder():
     """Points outside a wall lying mostly near the ground (below ``shoulder_skirt_height`` x the top) are its
     skirt fused to the wall's foot, not a wider part (a deck or a cab stands higher): at most a doubtful
     shoulder whose reading the uncertainty spans. Seed 2071's two model boxes read W +13.9 / +13.6 % through
-    such a skirt (60-80 % of their outside points under 0.15 of the top). The walls' plateau is off here, as
+    such a skirt (75-76 % of one side's outside points under 0.15 of the top). The walls' plateau is off here, as
     it was on those draws (it would read these walls either way). Measured: +5.1 to +6.3 % with the skirt as a
     shoulder, -0.03 to +0.06 % (sigma 2.7-3.3 %) without."""
     W = 0.3
