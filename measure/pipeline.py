@@ -77,11 +77,19 @@ class MeasureConfig:
     contained_part_share: float | None = 0.5  # two clusters covering the hint are one truck cut apart when the smaller
     contained_part_max_volume_rel: float = 0.5  # lies this share inside the larger's footprint with under this x its
                                              # volume (None: always ambiguous; see measure.truck.TruckFilter)
+    part_union_width_rel: float | None = 1.1  # ... or when together they are at most this x as wide as the wider
+                                             # alone, at their narrowest (None: off; see measure.truck.TruckFilter)
     max_hint_distance_rel: float | None = 0.15  # with an orbit's centre as the hint, the chosen cluster's footprint lies
                                              # within this x its length of it, else no truck is at the hint (refused;
                                              # None: off). A user's --centre is judged by quality.check_centre instead
     merge_gap_res: float = 15.0              # clusters in line with the truck within this gap join it (a cab across
                                              # the gap to its box); 0 disables (the paper's single cluster)
+    merge_min_width_overlap: float = 0.6     # ... when their width ranges overlap by this share of the narrower one
+    merge_alongside_max_angle_deg: float = 20.0  # a long part lying along the truck (axes within this angle, both at
+    merge_alongside_min_length_to_width: float = 2.0  # least this x as long as wide) is read in the two's joined axes
+    merge_apart_beside: bool = True          # a long part standing apart from the truck (together wider than the two
+                                             # widths added, at their narrowest) never joins: a vehicle beside it
+                                             # (see measure.truck.merge_truck_parts)
     end_scraps_min_height_rel: float | None = 0.1  # beyond either end, scraps within the truck's width join it while
                                              # points reaching this x its height follow each other within the merge
                                              # gap (a cab seen obliquely, in scraps; None: off; see
@@ -630,7 +638,8 @@ def _truck_points(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureC
     the coarsest one's does: at a gap barely bridged only part of the truck joins. A vehicle parked beside the
     truck, a width or more away, lies far beyond 4 ε (12 spacings). Two clusters covering the hint at a coarser ε
     are skipped (seen from above vehicles do not overlap: they are one truck's halves, joined at the next ε); at
-    the first ε they stay refused and are not retried.
+    the first ε they stay refused and are not retried, unless one lies inside the other's footprint or adds no
+    width to it (``TruckFilter.contained_part_share``, ``part_union_width_rel``: then they are one truck at any ε).
     """
     from measure.truck import NoTruckError
 
@@ -684,12 +693,17 @@ def _truck_at(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfi
         min_height_to_width=cfg.min_height_to_width, max_height_to_width=cfg.max_height_to_width,
         ambiguity_ratio=cfg.ambiguity_ratio, min_volume_rel=cfg.min_volume_rel,
         contained_part_share=cfg.contained_part_share, contained_part_max_volume_rel=cfg.contained_part_max_volume_rel,
+        part_union_width_rel=cfg.part_union_width_rel,
     )
     try:
         chosen, cstats = select_truck(xyz_g, labels, filt, centre_xy, source=source)
         part_min_points = max(cfg.min_cluster_points // 5, 20)   # a part of the truck, not a truck of its own
         if cfg.merge_gap_res > 0:
-            parts = merge_truck_parts(xyz_g, labels, chosen, cfg.merge_gap_res * res, part_min_points)
+            parts = merge_truck_parts(xyz_g, labels, chosen, cfg.merge_gap_res * res, part_min_points,
+                                      min_width_overlap=cfg.merge_min_width_overlap,
+                                      alongside_max_angle_deg=cfg.merge_alongside_max_angle_deg,
+                                      alongside_min_length_to_width=cfg.merge_alongside_min_length_to_width,
+                                      apart_beside=cfg.merge_apart_beside)
         else:
             parts = [chosen]
         if centre_xy is not None and cfg.opposite_side_max_offset_rel is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -115,9 +116,12 @@ def test_a_part_cut_off_inside_the_trucks_footprint_is_not_a_second_truck():
     assert m.clusters["selection_rule"] == "largest_covering_centre_hint_with_parts_inside"
     assert abs(m.length_m / 2.1 - 1) < 0.01 and abs(m.width_m / 0.38 - 1) < 0.01 and abs(m.height_m / 0.38 - 1) < 0.01, \
         (m.length_m, m.width_m, m.height_m)
-    # Without the rule the same cloud is refused.
+    # Without the rule the part, adding no width to the truck, is still taken for one (the next rule); without
+    # both the same cloud is refused.
+    m2 = measure_points(pts, MeasureConfig(contained_part_share=None), centre_hint=ta["truck_centre"])
+    assert m2.clusters["selection_rule"] == "largest_covering_centre_hint_with_parts_in_its_width"
     with pytest.raises(StageError, match="both cover the centre hint"):
-        measure_points(pts, MeasureConfig(contained_part_share=None), centre_hint=ta["truck_centre"])
+        measure_points(pts, MeasureConfig(contained_part_share=None, part_union_width_rel=None), centre_hint=ta["truck_centre"])
 
 
 def test_no_truck_like_cluster_names_the_filter():
@@ -253,18 +257,21 @@ def test_ground_thicker_than_point_spacing_is_still_found():
     assert np.degrees(np.arccos(abs(m.ground["normal"] @ up))) < 0.5
 
 
+def _box_faces(rng, lo, hi, n):
+    """n points on the faces of the axis-aligned box lo..hi (m): each on one face, at random."""
+    p = lo + rng.random((n, 3)) * (np.asarray(hi) - lo)
+    face = rng.integers(0, 3, n)
+    side = rng.integers(0, 2, n)
+    p[np.arange(n), face] = np.where(side == 1, np.asarray(hi)[face], np.asarray(lo)[face])
+    return p
+
+
 def test_a_fragment_nearer_the_centre_hint_is_not_taken_for_the_truck():
     """A 0.2 m scrap beside a 2 m truck, nearer the orbit centre than the truck's footprint: the truck is chosen."""
     from measure.truck import TruckFilter, select_truck
 
     rng = np.random.default_rng(16)
-
-    def box(lo, hi, n):
-        p = lo + rng.random((n, 3)) * (np.asarray(hi) - lo)
-        face = rng.integers(0, 3, n)            # put every point on one of the box's faces
-        side = rng.integers(0, 2, n)
-        p[np.arange(n), face] = np.where(side == 1, np.asarray(hi)[face], np.asarray(lo)[face])
-        return p
+    box = functools.partial(_box_faces, rng)
 
     truck = box(np.array([0.0, -0.2, 0.0]), np.array([2.0, 0.2, 0.4]), 40_000)
     scrap = box(np.array([0.9, 0.21, 0.0]), np.array([1.1, 0.29, 0.1]), 1_500)
@@ -290,6 +297,38 @@ def test_a_fragment_nearer_the_centre_hint_is_not_taken_for_the_truck():
         select_truck(xyz4, labels4, filt, np.array([1.2, 0.0]))
 
 
+def test_a_trucks_two_halves_both_covering_the_centre_hint_are_one_truck():
+    """A fused cloud can cut a truck across into two clusters whose footprints overlap at the cut (tuning seed
+    2072: a full-scale semi-trailer as two halves 6.3 and 6.0 m long, 13 % inside each other, both covering the
+    orbit's centre): together they are no wider than either, so the larger is chosen and the other joins it. A
+    copy of the truck skewed across it (a pose jump) or shifted beside it widens the pair and is still refused."""
+    from measure.truck import TruckFilter, merge_truck_parts, select_truck
+
+    box = functools.partial(_box_faces, np.random.default_rng(17))
+
+    rear = box(np.array([0.0, -0.2, 0.0]), np.array([1.15, 0.2, 0.4]), 20_000)
+    front = box(np.array([0.9, -0.2, 0.0]), np.array([2.0, 0.2, 0.4]), 20_000)
+    xyz, labels = np.concatenate([rear, front]), np.r_[np.zeros(len(rear), int), np.ones(len(front), int)]
+    filt = TruckFilter(min_points=300, max_points=None, min_length_m=0.05, max_length_m=None, min_width_m=0.01, min_height_m=0.01)
+    hint = np.array([1.0, 0.05])                # inside both halves' footprints
+    chosen, stats = select_truck(xyz, labels, filt, hint)
+    assert (chosen, stats["selection_rule"]) == (0, "largest_covering_centre_hint_with_parts_in_its_width")
+    parts = merge_truck_parts(xyz, labels, chosen, gap_m=0.05, min_points=60)
+    assert parts == [0, 1]
+    whole = xyz[np.isin(labels, parts)]
+    assert abs(np.ptp(whole[:, 0]) - 2.0) < 0.01 and abs(np.ptp(whole[:, 1]) - 0.4) < 0.01
+    with pytest.raises(StageError, match="both cover the centre hint"):
+        select_truck(xyz, labels, dataclasses.replace(filt, part_union_width_rel=None), hint)
+    # A copy of the rear half turned 15 degrees about the hint, or the truck's front half 0.1 m to the side:
+    # together wider than either (1.25-1.6 x), two vehicles as far as the cloud can tell.
+    c, s = np.cos(np.radians(15)), np.sin(np.radians(15))
+    turned = (rear[:, :2] - hint) @ np.array([[c, s], [-s, c]]) + hint
+    for other in (np.c_[turned, rear[:, 2]], front + [0.0, 0.1, 0.0]):
+        xyz2 = np.concatenate([rear, other])
+        with pytest.raises(StageError, match="two equally plausible trucks both cover the centre hint"):
+            select_truck(xyz2, labels, filt, hint)
+
+
 def test_a_vehicle_away_from_the_orbit_centre_is_not_measured_in_place_of_the_truck():
     """The truck the drone circled came out as scraps under the cluster filters (a plain model box on seed 2041),
     and a taller vehicle 1.5 widths beside it was the only truck-like cluster: it was measured as the truck (H +27 %).
@@ -298,14 +337,7 @@ def test_a_vehicle_away_from_the_orbit_centre_is_not_measured_in_place_of_the_tr
     one beside a fragment of it that the merged parts cover."""
     from measure.truck import TruckFilter, check_hint_distance, merge_truck_parts, select_truck
 
-    rng = np.random.default_rng(17)
-
-    def box(lo, hi, n):
-        p = lo + rng.random((n, 3)) * (np.asarray(hi) - lo)
-        face = rng.integers(0, 3, n)
-        side = rng.integers(0, 2, n)
-        p[np.arange(n), face] = np.where(side == 1, np.asarray(hi)[face], np.asarray(lo)[face])
-        return p
+    box = functools.partial(_box_faces, np.random.default_rng(17))
 
     other = box(np.array([0.2, 0.5, 0.0]), np.array([1.7, 0.85, 0.65]), 30_000)     # taller, 1.5 widths to the side
     scraps = box(np.array([0.0, -0.15, 0.0]), np.array([1.8, 0.15, 0.5]), 2_000)    # the truck: too few points per cluster
