@@ -73,7 +73,7 @@ class DimensionConfig:
                                        # the gap to the top), and, once that stands more than the ground's
                                        # noise above the level, the gap to the top 0.5 % of the points
                                        # whatever its size. On the rig-only far roof of tuning seed 2029/6
-                                       # (-14 %), 3 mm -> 43 mm; README, issue 12's twenty-ninth round.
+                                       # (-14 %), 3 mm -> 43 mm; docs/ROUNDS.md, issue 12's twenty-ninth round.
                                        # None: off
     top_above_roof_sigmas: float | None = None  # read the height from the top 0.5 % of the truck's points, not
                                        # the densest roof level, when they lie more than this many of the
@@ -112,7 +112,7 @@ class DimensionConfig:
                                        # truck stands (0.03-0.09 m) can be four times its fused walls' (0.02 m),
                                        # and a flatbed's deck and cab 0.05-0.13 m outside its load's walls hid
                                        # in that reach (draw 13 of seed 2063: W -9.8 % at 4.9 sigma, a wrong
-                                       # `within`). False: the noise's reach. Measured: README, issue 12's
+                                       # `within`). False: the noise's reach. Measured: docs/ROUNDS.md, issue 12's
                                        # thirty-fourth round
     shoulder_pair: bool = True         # ... and where the other side's shoulder passed the test, that side's
                                        # is taken too: a truck is symmetric about its length axis (four
@@ -138,7 +138,7 @@ class DimensionConfig:
                                        # 10.13 % (those two +5.60 / +4.42 %); 2070 1.57 -> 1.62 % (three
                                        # tankers whose skirt shoulder had landed near their widest line now
                                        # read at their walls' peaks, -2.1 to -3.6 %); Table 2 and 12 draws of
-                                       # 2062-2066 unchanged. README, issue 12's forty-second round. None: off
+                                       # 2062-2066 unchanged. docs/ROUNDS.md, issue 12's forty-second round. None: off
     end_facing_cos: float | None = 0.7  # each end of the length moves in to its own face when the face lies
                                        # inside the end's peak of all points by more than the blur
                                        # (hypot(noise, bandwidth)): the outermost density peak, of at least
@@ -148,7 +148,7 @@ class DimensionConfig:
                                        # and their points, not the faces', make the outermost peak of all
                                        # points (seed 21 draw 0, a 7.6 m box from 20 m: L +5.3 %). The
                                        # length's uncertainty spans both readings. None: off (the paper).
-                                       # Measured: README, issue 12's twenty-ninth round
+                                       # Measured: docs/ROUNDS.md, issue 12's twenty-ninth round
     end_step_blurs: float | None = 2.0  # each end of the length moves out to a face that a stretch of heights
                                        # holds beyond it by more than this many blurs (hypot(noise,
                                        # bandwidth)): per height slice (``end_profile_slices`` of the height
@@ -159,7 +159,7 @@ class DimensionConfig:
                                        # set-back windscreen and roof (1-2 % of the length), a flatbed's
                                        # deck behind its load; all points' end peak sits on the larger
                                        # upper face. The length's uncertainty spans both readings.
-                                       # Needs end_facing_cos. None: off. Measured: README, issue 12's
+                                       # Needs end_facing_cos. None: off. Measured: docs/ROUNDS.md, issue 12's
                                        # thirty-fifth round
     end_profile_slices: int = 20       # height slices of the end profile (``end_step_blurs``)
     end_step_slices: int = 3           # consecutive slices (a majority of them holding a face) a stretch spans
@@ -186,7 +186,7 @@ class DimensionConfig:
                                        # 3 x the slices' scatter about the fit) the vertex is the width, when
                                        # wider than the peaks' reading, which the uncertainty then spans
                                        # (``curved_flank_width``). None: off. Measured on 276 re-measured
-                                       # tuning clouds: README, issue 12's twelfth round
+                                       # tuning clouds: docs/ROUNDS.md, issue 12's twelfth round
     crest_flank_min_drop: float | None = 0.005  # under a rounded top (rule ``rounded_top_99.5``) the flank's
                                        # widest height is read as ``curved_flank_min_drop`` reads it but with
                                        # only this fall on both sides of the vertex (``curved_flank_width``,
@@ -194,7 +194,7 @@ class DimensionConfig:
                                        # strict tests, made to keep a flat wall's ripple from passing for a
                                        # rounded flank, rejected most tanks' noisy profiles, whose peaks over
                                        # all heights read the narrower flanks, cab and wheels (-3 to -9 %).
-                                       # None: off. Measured: README, issue 12's sixteenth round
+                                       # None: off. Measured: docs/ROUNDS.md, issue 12's sixteenth round
     rounded_top_min_drop: float | None = 0.07  # a rounded top (a tank's crest) has no roof level: the densest
                                        # level found lies on its flank or on a lower cab roof. The top
                                        # surface's profile across the width (``top_profile``) then falls from
@@ -203,7 +203,7 @@ class DimensionConfig:
                                        # third of the height: 0.13; a flat roof: 0, a bulging one by under
                                        # half its bulge); the height is then the top 0.5 % of the points
                                        # (rule ``rounded_top_99.5``), and the uncertainty still spans the
-                                       # level found. None: off. Measured: README, issue 12's thirteenth round
+                                       # level found. None: off. Measured: docs/ROUNDS.md, issue 12's thirteenth round
     wall_plateau_slices: int | None = 9  # vertical side walls are read from the width's height profile: the
                                        # widest running median of this many of its slices (45 % of the top)
                                        # replaces the peaks' reading (rule ``wall_plateau``), whose
@@ -215,7 +215,7 @@ class DimensionConfig:
                                        # the shoulder rule finds a deck's one-slice edge, the plateau reads
                                        # the load), nor on a rounded flank (``curved_flank_vertex``); the
                                        # uncertainty spans the peaks' reading too. None: off. Measured:
-                                       # README, issue 12's fourteenth round
+                                       # docs/ROUNDS.md, issue 12's fourteenth round
     wall_plateau_max_top_drop: float = 0.07  # ... and only under a top seen flat: its profile across the width
                                        # (``rounded_top_drop``) falls by less than this share of the top
     wall_plateau_min_outside_height: float = 0.5  # ... and where the peaks read wider, only when the points
@@ -234,7 +234,7 @@ class DimensionConfig:
                                        # same reading over the upper slices), when it lies beyond the side by
                                        # more than this many blurs, hypot(noise, bandwidth) (rule
                                        # ``low_ledge``; the reading before is the other one the uncertainty
-                                       # spans). None: off. Measured: README, issue 12's thirty-sixth round
+                                       # spans). None: off. Measured: docs/ROUNDS.md, issue 12's thirty-sixth round
     ledge_slice_share: float = 0.025
     ledge_max_height: float = 0.5
     ledge_min_cover: float = 0.5
@@ -256,7 +256,7 @@ class DimensionConfig:
                                        # rim against the lighter ground is matched. On tuning seeds 2034-2041
                                        # (312 clouds) every other paint read >= 0.21; black bodies 0.04 up, half
                                        # of them under 0.17 (those above: mostly flatbeds, whose load is not
-                                       # black). None: off. Measured: README, issue 12's seventeenth round
+                                       # black). None: off. Measured: docs/ROUNDS.md, issue 12's seventeenth round
     roof_stretch_min_share: float | None = 0.25  # a roof over part of the length, higher than the roof level
                                        # found over all the points: where the truck's upper surface along its
                                        # length (``top_profile`` across the length) lies more than
@@ -266,7 +266,7 @@ class DimensionConfig:
                                        # stretch's points alone (rule ``roof_peak_highest_stretch``). Why: a plain
                                        # roof fused from weak depth is a smear, not a peak, and a lower cab
                                        # roof is the highest crisp level of
-                                       # all the points. None: off. Measured: README, issue 12's fifteenth round
+                                       # all the points. None: off. Measured: docs/ROUNDS.md, issue 12's fifteenth round
     roof_stretch_sigmas: float = 3.0
     flank_slices: int = 20             # height slices of the width's profile (of the truck's top, 99.5 % quantile)
     flank_window: int = 4              # slices on each side of a profile maximum the quadratic is fitted to
@@ -284,7 +284,7 @@ class DimensionConfig:
                                        # 2045-2047): 16 -> 12 refused or failed; width mean 4.50 -> 3.93 % over
                                        # the 117 measured (gated ones too), median 1.59 -> 1.55 %; the largest
                                        # loss a full-scale flatbed, +1.1 -> -6.3 % (1.7 sigma). Measured:
-                                       # README, issue 12's nineteenth round
+                                       # docs/ROUNDS.md, issue 12's nineteenth round
     length_min_height: float | None = 0.15  # an end peak of the length more than two blurs beyond the robust
                                        # extremes of the points at or above this share of the top is the
                                        # ground's skirt, no end; the peaks are still read from all points.
@@ -294,7 +294,7 @@ class DimensionConfig:
                                        # face, and all points' outermost peak lay there (seed 21's draw 0, a
                                        # 7.6 m box with a black cab: its front read 0.20 m ahead of the cab,
                                        # L +3.5 %). On 53 tuning clouds: L mean 0.99 -> 0.93 %, p90 2.18 ->
-                                       # 2.11 %, over 3 %: 2 -> 1. Measured: README, issue 12's 33rd round
+                                       # 2.11 %, over 3 %: 2 -> 1. Measured: docs/ROUNDS.md, issue 12's 33rd round
     heading_wall_max_nz: float | None = 0.3  # the heading refinement (``refine_heading``) picks its direction
                                        # from the wall points' projection alone: those whose normal's vertical
                                        # part is below this (a surface within 17 deg of vertical); all points
@@ -304,7 +304,7 @@ class DimensionConfig:
                                        # on a few clouds and turned a right PCA axis 4-9 deg off (a model
                                        # flatbed of seed 2054: W +35 %, 8.8 sigma off, no gate). Heading against
                                        # the truth on 387 tuning clouds (seeds 2045-2054): p99 2.29 -> 0.49 deg,
-                                       # max 8.60 -> 3.99 deg, 376 unchanged. README, issue 12's twenty-fifth round
+                                       # max 8.60 -> 3.99 deg, 376 unchanged. docs/ROUNDS.md, issue 12's twenty-fifth round
     normal_neighbours: int = 16        # points per local plane fit for the normals (scale-free)
     bootstrap: int = 30                # Poisson-bootstrap replicates for the uncertainties
     grid_bins: int = 4096              # bins over a projection's range (capped resolution of the KDE)

@@ -175,7 +175,7 @@ class MeasureConfig:
                                                 # 0.2 voxel, into false walls and shoulders. False: read as fused.
                                                 # Tuning seeds 2062-2066 and Table 2 (214 clouds): width mean / p90 /
                                                 # rms |error| 2.49 / 5.34 / 4.83 -> 2.27 / 5.47 / 3.44 %; seed 2069
-                                                # mean 1.96 -> 2.12 % (README, 38th-39th rounds)
+                                                # mean 1.96 -> 2.12 % (docs/ROUNDS.md, 38th-39th rounds)
     lattice_dither_all: bool = False            # true: the length and height are read on the dithers too (the 38th
                                                 # round's option). Off: the dither flips the length's end rule both
                                                 # ways (its p90 2.13 -> 2.20 % on those clouds, 1.45 -> 1.69 % on seed
@@ -365,7 +365,7 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
     t = time.perf_counter()
     res = _resolution(p, cfg, rng, source)
     # The width's density is read at half the point spacing, 0.2 of a fused cloud's voxel, where the voxel grid's
-    # planes ripple it (README, issue 12's thirty-seventh round): the truck's points are dithered below for the width
+    # planes ripple it (docs/ROUNDS.md, issue 12's thirty-seventh round): the truck's points are dithered below for the width
     # (lattice_dither, the 38th-39th rounds).
     lattice = point_lattice(p)
     timings["resolution"] = time.perf_counter() - t

@@ -49,7 +49,7 @@ def lattice_dither(points: np.ndarray, lattice_m: float, rng=0, min_repeats: int
     points: (N, 3) metres in the frame the cloud was fused in. lattice_m: its lattice (``point_lattice``). rng: seed.
     A TSDF's points are its zero crossings along the voxel edges: two of a point's three coordinates are voxel
     planes, so a surface lying along an axis projects onto that axis as a comb with one tooth per voxel, and a
-    density read finer than the voxel reads the teeth as walls and shoulders (README, issue 12's thirty-seventh and
+    density read finer than the voxel reads the teeth as walls and shoulders (docs/ROUNDS.md, issue 12's thirty-seventh and
     thirty-eighth rounds). Dither of one step, the standard remedy for a quantised signal, spreads each tooth over
     its own cell. The coordinate the crossing found (a wall's position across itself) is not a lattice value and
     gets none. A coordinate is a lattice value when at least min_repeats points hold it exactly and it lies a whole

@@ -89,7 +89,7 @@ class ReconstructConfig:
     # re-run with motion stereo, went from 13 "no ground plane" refusals to 1 (and 1 "no truck"), their
     # mean error from 7.2 % to 2.8 % and their heights from 8.9 % (bias -8.9 %: a plain roof seen at
     # 14-30 deg sits ~1 px of disparity towards the background, 10 cm too far at 2.3 m) to 2.8 %
-    # (README, issue 12's fourth round). Full scale
+    # (docs/ROUNDS.md, issue 12's fourth round). Full scale
     # (8-15 m, 60-120 baselines) always switches: the two rendered presets' widths -0.97 % / -3.04 %,
     # lengths and heights within 0.14 %, instead of +2.85 % / -3.56 % and 0.5-0.8 % on the rig's depth.
     far_scene_depth_baselines: float | None = 14.2

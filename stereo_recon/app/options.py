@@ -11,7 +11,7 @@ PRESETS = ("fast", "balanced", "quality", "wls")
 # fill, and no same-surface interpolation, which would bridge a dropped roof to the ground behind it). Off by
 # default: the threshold that keeps a plain black roof from being carved (tuning draw 2035/0 at 48 frames H
 # -17.2 % -> -2.4 %) also drops weakly textured panels (Table 2 end to end 0.66 -> 1.16 %, one truck split in two;
-# README, issue 12's fifteenth round).
+# docs/ROUNDS.md, issue 12's fifteenth round).
 PLAIN_PAINT = {"min_texture_snr": 2.0, "fill_occlusion_slack_px": 3.0, "fill_same_surface_px": None}
 
 
