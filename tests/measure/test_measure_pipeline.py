@@ -337,7 +337,8 @@ def test_a_vehicle_away_from_the_orbit_centre_is_not_measured_in_place_of_the_tr
     one beside a fragment of it that the merged parts cover."""
     from measure.truck import TruckFilter, check_hint_distance, merge_truck_parts, select_truck
 
-    box = functools.partial(_box_faces, np.random.default_rng(17))
+    rng = np.random.default_rng(17)
+    box = functools.partial(_box_faces, rng)
 
     other = box(np.array([0.2, 0.5, 0.0]), np.array([1.7, 0.85, 0.65]), 30_000)     # taller, 1.5 widths to the side
     scraps = box(np.array([0.0, -0.15, 0.0]), np.array([1.8, 0.15, 0.5]), 2_000)    # the truck: too few points per cluster
