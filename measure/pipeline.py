@@ -115,6 +115,9 @@ class MeasureConfig:
     shoulder_pair: bool = True               # ... taken as a shoulder when the other side's passed (a truck is symmetric)
     shoulder_reach_own_flank: bool = True    # a shoulder looked for beyond the wall's own scatter where that is sharper
                                              # than the ground's noise (False: the noise's reach; see DimensionConfig)
+    flank_length_segments: int = 3           # a rounded flank's widest line also read stretch by stretch along the
+                                             # length, so that a narrower cab does not pull it in (1: the whole
+                                             # length only; see DimensionConfig)
     shoulder_fringe_height: float | None = 0.75  # a side's outside points mostly at or above this share of the top
                                              # are a fringe under the roof's edge: no shoulder, a reading the
                                              # uncertainty spans (None: off; see DimensionConfig)

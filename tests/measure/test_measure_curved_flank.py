@@ -42,13 +42,18 @@ def _elliptic_tanker(rng, L=1.6, W=0.26, H=0.40, noise=0.003, n=80_000):
 def test_a_tank_is_measured_at_its_widest_height():
     """The flank's points over all heights peak inside the tank's widest line (and the cab's flat walls,
     3 % narrower, add to that): the peaks' reading is 2.8 % low here with a 1.1 % sigma (the truth outside
-    its 2 sigma), the profile's vertex is within 0.4 % (sigma 1.8 %: it spans both readings)."""
+    its 2 sigma), the profile's vertex is within 0.3 % (sigma 1.7 %: it spans both readings). Read over the
+    whole length only, the cab's walls merge with the flank's peak in each height slice and pull the vertex
+    in: -0.8 % (``flank_length_segments``; the envelope's tankers read 1-3 % narrow that way)."""
     W = 0.26
     for seed in range(3):
         xyz = _elliptic_tanker(np.random.default_rng(seed), W=W)
         m = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003)
         assert m["rules"]["width"] == "curved_flank_vertex", m["rules"]
-        assert abs(m["width_m"] / W - 1) < 0.01, m["width_m"]
+        assert abs(m["width_m"] / W - 1) < 0.004, m["width_m"]                      # measured: -0.18 to -0.24 %
+        whole = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003, config=replace(DimensionConfig(), flank_length_segments=1))
+        assert whole["rules"]["width"] == "curved_flank_vertex" and whole["width_m"] < m["width_m"] - 0.001, whole["width_m"]
+        assert whole["width_m"] / W - 1 < -0.006, whole["width_m"]                  # measured: -0.80 to -0.83 %
         assert abs(m["width_m"] - W) <= 2 * m["uncertainty_m"]["width"], m["uncertainty_m"]
         assert m["width_walls_m"] < m["width_m"] and m["uncertainty_m"]["width"] >= (m["width_m"] - m["width_walls_m"]) / 2
         assert any("rounded flank" in w for w in m["warnings"])
