@@ -271,7 +271,8 @@ class DimensionConfig:
     flank_slices: int = 20             # height slices of the width's profile (of the truck's top, 99.5 % quantile)
     flank_length_segments: int = 3     # a rounded flank's widest line is also read from the width profile of this
                                        # many stretches of the length read alone (their median per slice;
-                                       # ``width_profile``), the wider of the two vertices taken: a tank's cab,
+                                       # ``width_profile``), where the whole length's profile shows a rounded
+                                       # flank (the strict test), the wider of the two vertices taken: a tank's cab,
                                        # 3 % narrower than its shell, merges with the flank's peak in each
                                        # height slice over the whole length and pulls it in (a synthetic
                                        # tanker: -0.8 to -1.0 % at 2-4 mm of noise, with it -0.0 to -0.2 %).
