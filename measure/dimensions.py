@@ -849,12 +849,12 @@ def rounded_top_drop(u: np.ndarray, prof: np.ndarray, top: float) -> float:
 
 def _curved_flank(out: dict, rules: dict, ends: dict, zs: np.ndarray, widths: np.ndarray, top: float,
                   cfg: DimensionConfig, min_drop: float | None = None, strict: bool = True,
-                  stretches: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                  stretches=None) -> None:
     """Replace the width in out (and its rule and edges) by a rounded flank's widest part when that is wider.
 
     zs, widths: the width's height profile (``width_profile``); top: the truck's top (m, the heights' 99.5 %
-    quantile), which the profile's slices divide; stretches: the same profile (heights, widths) read stretch by
-    stretch along the length (``flank_length_segments``; None: not read), whose vertex counts too where the
+    quantile), which the profile's slices divide; stretches: a function giving the same profile (heights, widths)
+    read stretch by stretch along the length (``flank_length_segments``; None: not read), whose vertex counts too where the
     whole length's shows a rounded flank, the wider of the two taken. The peaks'
     reading becomes the other reading the uncertainty spans (``width_walls_m``): what is left of the flank's
     inward pull and a flat wall's noise read as curvature are not told apart by the data. min_drop, strict:
@@ -866,7 +866,7 @@ def _curved_flank(out: dict, rules: dict, ends: dict, zs: np.ndarray, widths: np
     if v is not None and stretches is not None:
         # Only where the whole length's profile shows a rounded flank: three stretches' thinner profiles can
         # bend a flat wall's enough to pass (a model box of Table 2, +1.7 %).
-        s = curved_flank_width(*stretches, cfg.flank_window, drop, cfg.flank_min_height * top, strict=strict)
+        s = curved_flank_width(*stretches(), cfg.flank_window, drop, cfg.flank_min_height * top, strict=strict)
         v = v if s is None else max(v, s)
     if v is None or v <= out["width_m"]:
         return
@@ -1477,9 +1477,11 @@ def measure_dimensions(xyz: np.ndarray, resolution_m: float, noise_m: float = 0.
                 stretches = None
                 if config.flank_length_segments > 1:
                     # The rounded flank's widest line is also read stretch by stretch along the length (a
-                    # narrower cab merges with it otherwise); the walls' plateau keeps the whole length's profile.
-                    stretches = width_profile(b, z, side, 0.5 * (w0 + w1), d["bandwidth"], top, config.flank_slices,
-                                              a=a, segments=config.flank_length_segments)
+                    # narrower cab merges with it otherwise), only where the whole length's shows one: read then.
+                    # The walls' plateau keeps the whole length's profile.
+                    def stretches(mid=0.5 * (w0 + w1), h=d["bandwidth"]):
+                        return width_profile(b, z, side, mid, h, top, config.flank_slices, a=a,
+                                             segments=config.flank_length_segments)
                 if config.curved_flank_min_drop is not None:
                     _curved_flank(out, rules, ends, zs, widths, top, config, stretches=stretches)
     out["length_peaks_m"] = None
