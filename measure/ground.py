@@ -29,7 +29,7 @@ class GroundPlane:
     iterations: int
     rms_m: float                       # RMS distance of the inliers to the plane
     initial_normal: np.ndarray
-    initial_normal_source: str         # "up_hint" or "local_normals"
+    initial_normal_source: str         # "up_hint" (refined by local normals), "up_hint_as_given" or "local_normals"
     history: list = field(default_factory=list)   # per iteration: normal, tau
 
     def height(self, points: np.ndarray) -> np.ndarray:
@@ -224,12 +224,13 @@ def _final_refit(p: np.ndarray, nn: np.ndarray, d: float, xi_m: float, rms: floa
 
 
 def ground_plane(points: np.ndarray, xi_m: float, up_hint: np.ndarray | None = None, max_iter: int = 30, rng=0,
-                 min_peak_rel: float = 0.25, max_points: int = 300_000) -> GroundPlane:
+                 min_peak_rel: float = 0.25, max_points: int = 300_000, refine_hint: bool = True) -> GroundPlane:
     """Algorithm 1: iteratively refit the ground plane while the inlier rate τ rises.
 
     points: (N, 3) metres. xi_m: half-thickness ξ of the band around the density peak (metres).
     up_hint: approximate up direction (e.g. from the camera trajectory): it selects the dominant
-    local-normal orientation within 30° of it as the start; None => :func:`estimate_up` alone.
+    local-normal orientation within 30° of it as the start (refine_hint False: the hint itself is the
+    start, for a hint known to be exact where the local normals lead off); None => :func:`estimate_up` alone.
     Each iteration projects all points on the current normal (W = P·n), takes the peak of their
     Gaussian KDE, keeps the points within ±ξ of it (P_m, τ = |P_m|/N) and fits a least-squares
     plane to them (Eqs. 1–3); the new normal is kept while τ does not fall.
@@ -240,7 +241,9 @@ def ground_plane(points: np.ndarray, xi_m: float, up_hint: np.ndarray | None = N
     """
     p = np.asarray(points, dtype=np.float64)
     N = len(p)
-    if up_hint is not None:
+    if up_hint is not None and not refine_hint:
+        n, source = _unit(up_hint), "up_hint_as_given"
+    elif up_hint is not None:
         # The hint picks the orientation; the local normals near it give the precise start
         # (a trajectory's 'up' can be several degrees off, too far for the ±ξ band).
         n = estimate_up(p, rng=rng, prior=_unit(up_hint))

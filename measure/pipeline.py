@@ -41,6 +41,10 @@ class MeasureConfig:
     ground_max_iter: int = 30
     min_ground_fraction: float = 0.05        # a ground layer holds at least this share of all points
     min_ground_contrast: float = 2.0         # ... and this many times the points of the layers beside it
+    ground_hint_retry: bool = True           # where no ground passes these from the up hint refined by the local
+                                             # normals, Algorithm 1 runs again from the hint as given (an orbit's
+                                             # up): on a plain, noisy ground the normals are the truck's and lead
+                                             # the start degrees off (tuning seed 2074/6: 2.8 deg, tau 0.008)
     ground_noise_band: float = 2.5           # ξ >= this x the ground layer's measured robust sigma (0 = off)
     ground_noise_thickness: float = 3.0      # d_h >= this x the ground layer's measured robust sigma
     ground_noise_max_res: float | None = None  # ... up to this x resolution (None: no such cap)
@@ -567,13 +571,31 @@ class _Ground:
 
 
 def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str) -> _Ground:
-    """Algorithm 1 with the band widened to a noisy layer's own thickness; StageError when there is no ground."""
+    """Algorithm 1 with the band widened to a noisy layer's own thickness; StageError when there is no ground.
+
+    Started from the up hint refined by the local normals; where that finds no ground and
+    ``cfg.ground_hint_retry`` is set, again from the hint as given (the first error stands if that fails too).
+    """
+    try:
+        return _ground_from(p, cfg, res, up, rng, source, refine_hint=True)
+    except StageError as err:
+        if up is None or not cfg.ground_hint_retry:
+            raise
+        first = err
+    try:
+        return _ground_from(p, cfg, res, up, rng, source, refine_hint=False)
+    except StageError:
+        raise first from None
+
+
+def _ground_from(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str, refine_hint: bool) -> _Ground:
+    """``_ground`` from one start: the up hint refined by the local normals, or (refine_hint False) as given."""
     from measure.ground import ground_plane, local_layer_sigma
 
     xi = cfg.ground_band_m or cfg.ground_band_res * res
     d_h = cfg.ground_thickness_m or cfg.ground_thickness_res * res
     try:
-        plane = ground_plane(p, xi, up_hint=up, max_iter=cfg.ground_max_iter, rng=rng)
+        plane = ground_plane(p, xi, up_hint=up, max_iter=cfg.ground_max_iter, rng=rng, refine_hint=refine_hint)
         # A fused stereo cloud's ground is thicker than its point spacing (depth noise grows
         # with range), so a band of a few spacings would cut the layer in half. Measure the
         # layer's own thickness (robust sigma of the heights near the plane) and widen ξ and
@@ -594,7 +616,7 @@ def _ground(p: np.ndarray, cfg: MeasureConfig, res: float, up, rng, source: str)
                 cap = min(cap, cfg.ground_noise_max_res * res)
             if noisy_xi <= cap:
                 xi = noisy_xi
-                plane = ground_plane(p, xi, up_hint=plane.normal, max_iter=cfg.ground_max_iter, rng=rng)
+                plane = ground_plane(p, xi, up_hint=plane.normal, max_iter=cfg.ground_max_iter, rng=rng, refine_hint=refine_hint)
                 layer_sigma = _layer_sigma(plane.height(p), xi)
         if cfg.ground_thickness_m is None and xi == noisy_xi:
             d_h = max(d_h, cfg.ground_noise_thickness * layer_sigma)
