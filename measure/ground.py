@@ -230,7 +230,8 @@ def ground_plane(points: np.ndarray, xi_m: float, up_hint: np.ndarray | None = N
     points: (N, 3) metres. xi_m: half-thickness ξ of the band around the density peak (metres).
     up_hint: approximate up direction (e.g. from the camera trajectory): it selects the dominant
     local-normal orientation within 30° of it as the start (refine_hint False: the hint itself is the
-    start, for a hint known to be exact where the local normals lead off); None => :func:`estimate_up` alone.
+    start, the measure pipeline's second try where the local normals' start finds no ground);
+    None => :func:`estimate_up` alone.
     Each iteration projects all points on the current normal (W = P·n), takes the peak of their
     Gaussian KDE, keeps the points within ±ξ of it (P_m, τ = |P_m|/N) and fits a least-squares
     plane to them (Eqs. 1–3); the new normal is kept while τ does not fall.
