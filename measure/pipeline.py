@@ -137,7 +137,7 @@ class MeasureConfig:
     end_profile_slices: int = 20             # ... height slices of that profile
     end_step_slices: int = 3                 # ... consecutive slices a stretch spans
     end_step_max_height: float = 0.5         # ... a stretch starting below this share of the top
-    ledge_blurs: float | None = 2.0          # each side of the width moved out to a wider part low on the truck, the
+    ledge_blurs: float | None = 2.5          # each side of the width moved out to a wider part low on the truck, the
                                              # outer edge of its own thin height slice along the length, beyond the
                                              # side by more than this many blurs: a flatbed's deck beside its load
                                              # (None: off; see measure.dimensions.DimensionConfig)
@@ -148,6 +148,8 @@ class MeasureConfig:
     ledge_below_blurs: float | None = 0.0    # ... and beyond a lower slice's edge by more than this many blurs (a deck
                                              # on its chassis, not a wall's foot flaring into the ground; 0: by any
                                              # amount; None: any slice)
+    ledge_less_walls_offset: bool = False    # ... the ledge's edge taken in by the walls' peak-to-edge offset, as for
+                                             # a wall (False: where the deck's points end)
     wall_facing_cos: float | None = 0.7      # walls and roof placed by their own facing points (None: the
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see

@@ -174,8 +174,8 @@ def test_a_fringe_under_the_roof_beside_a_wall_is_no_shoulder():
     just under the roof (0.8-0.95 of the top), 5 % of the points. As a shoulder it would widen the truck by
     its band (and take a doubtful other side with it, the pair rule); lying mostly near the top it is a
     fringe: the width stays the walls', and the width with the band is the other reading the uncertainty
-    spans. The same band low on the truck (a deck) is still a shoulder. (The peaks' rule alone: the walls'
-    height-profile plateau, which would read this box, is off.)"""
+    spans. The same band low on the truck (a deck) still widens the truck, out to the band's edge. (The peaks'
+    rule alone: the walls' height-profile plateau, which would read this box, is off.)"""
     W, H = 0.38, 0.38
     peaks = replace(DimensionConfig(), wall_plateau_slices=None)
     rng = np.random.default_rng(7)
@@ -186,7 +186,9 @@ def test_a_fringe_under_the_roof_beside_a_wall_is_no_shoulder():
         xyz = np.vstack([box, band]) + rng.normal(0.0, 0.003, (len(box) + len(band), 3))
         m = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003, config=peaks)
         off = measure_dimensions(xyz, resolution_m=0.004, noise_m=0.003, config=replace(peaks, shoulder_fringe_height=None))
-        assert off["rules"]["width"] == "kde_peaks_plus_outer_shoulder" and off["width_m"] > W + 0.025, off["width_m"]
+        # Low on the truck the band is a deck: a shoulder, or read in its own height slice (``ledge_blurs``).
+        wider = ("kde_peaks_plus_outer_shoulder",) if fringe else ("kde_peaks_plus_outer_shoulder", "low_ledge")
+        assert off["rules"]["width"] in wider and off["width_m"] > W + 0.025, (off["rules"], off["width_m"])
         if fringe:
             # Measured: W -0.03 % (sigma 3.6 %), the other reading +7.0 %; without the test +7.0 % at 1.8 sigma.
             assert m["rules"]["width"] == "kde_two_peaks" and abs(m["width_m"] / W - 1) < 0.02, (m["rules"], m["width_m"])
@@ -194,7 +196,8 @@ def test_a_fringe_under_the_roof_beside_a_wall_is_no_shoulder():
             assert abs(m["width_m"] - W) < m["uncertainty_m"]["width"], m["uncertainty_m"]
             assert off["width_m"] / W - 1 > 0.06, off["width_m"]
         else:
-            assert m["rules"]["width"] == "kde_peaks_plus_outer_shoulder" and m["width_m"] == off["width_m"], m["width_m"]
+            assert m["rules"]["width"] in wider and m["width_m"] == off["width_m"], (m["rules"], m["width_m"])
+            assert abs(m["width_m"] - (W + 0.04)) < 0.01, m["width_m"]   # out to the band's outer edge
 
 
 def test_stray_points_outside_a_broad_wall_do_not_veto_the_walls():
@@ -641,19 +644,21 @@ def test_an_end_is_read_at_a_cabs_nose_ahead_of_its_set_back_windscreen():
     assert a["length_m"] == b["length_m"] and a["length_peaks_m"] is None
 
 
-def _envelope_flatbed(rng, L=12.0, W=2.57, H=3.9, n=40_000, sigma=0.012, deck_points=2000):
+def _envelope_flatbed(rng, L=12.0, W=2.57, H=3.9, n=40_000, sigma=0.012, deck_points=2000, eroded_m=0.0):
     """A full-scale flatbed laid out as the operating envelope draws it (``stereo_recon.synthetic.scene``): the
     deck (0.35 wheel radii thick, its top at ~0.31 H) spans the width, the load 10 % and the cab 3 % narrower
     stand on it; the deck's strip beside the load and its thin edge face hold few points (deck_points per
-    side)."""
+    side). eroded_m: the deck's strip and edge face end that far (m) inside the deck's true edge on each side,
+    as fusion leaves a thin deck's convex edge."""
     r = min(0.125 * H, 0.2 * W, 0.06 * L)
     zf, zd = 2.15 * r, 2.5 * r            # the deck's underside and top
     lw, cw = 0.9 * W, 0.97 * W
     xr, xb, xc = -L / 2, 0.25 * L, 0.3 * L
     pts = []
     for s in (-1, 1):
-        pts.append(_face(rng, deck_points, (xr, xb), tuple(sorted((s * lw / 2, s * W / 2))), (zd, zd)))  # deck strip
-        pts.append(_face(rng, deck_points // 2, (xr, xb), (s * W / 2, s * W / 2), (zf, zd)))            # deck edge face
+        we = W / 2 - eroded_m
+        pts.append(_face(rng, deck_points, (xr, xb), tuple(sorted((s * lw / 2, s * we))), (zd, zd)))    # deck strip
+        pts.append(_face(rng, deck_points // 2, (xr, xb), (s * we, s * we), (zf, zd)))                  # deck edge face
         pts.append(_face(rng, n, (xr, xb), (s * lw / 2, s * lw / 2), (zd, 0.9 * H)))                     # load sides
         pts.append(_face(rng, n // 6, (xc, L / 2), (s * cw / 2, s * cw / 2), (0.1 * H, 0.85 * H)))       # cab sides
         pts.append(_face(rng, n // 10, (xr, xc), (s * 0.36 * W, s * 0.36 * W), (0.1 * H, zf)))           # chassis
@@ -671,11 +676,11 @@ def test_a_flatbeds_deck_is_read_from_its_slice_where_the_cab_makes_the_outer_pe
     strip and edge beside the load too few points outside them for a shoulder: the width reads the cab's,
     3 % low at 0.45 % sigma (6.7 sigma off; seed 2064's draw 2, a 2.57 m flatbed read -5.7 % at 3 sigma, a
     wrong `within`). In the deck's own thin height slice its points are the outermost peak
-    (``ledge_blurs``): the side moves out to that slice's edge, less the walls' own peak-to-edge offset.
-    Measured: -0.17 / -0.03 %, sigma 1.5 % (the cab's reading the other one). A plain box reads the same
-    either way; so does a box whose sheared top pulls the width's centre aside
-    (``tests/measure/test_measure_heading.py``: its walls' plateau is placed off the walls, but its low slices
-    stand no further out than its upper ones)."""
+    (``ledge_blurs``): the side moves out to where that slice's points end (its half-height crossing).
+    Measured on the ideal deck here: +1.47 / +1.58 %, sigma 2.3 % (the edge face's own blur lies outside it; the
+    cab's reading the other one). A plain box reads the same either way; so does a box whose sheared top pulls
+    the width's centre aside (``tests/measure/test_measure_heading.py``: its walls' plateau is placed off the
+    walls, but its low slices stand no further out than its upper ones)."""
     W = 2.57
     for seed in range(2):
         xyz = _envelope_flatbed(np.random.default_rng(seed), W=W)
@@ -684,7 +689,7 @@ def test_a_flatbeds_deck_is_read_from_its_slice_where_the_cab_makes_the_outer_pe
         assert W - off["width_m"] > 5 * off["uncertainty_m"]["width"], off["uncertainty_m"]
         m = measure_dimensions(xyz, resolution_m=0.016, noise_m=0.012)
         assert m["rules"]["width"] == "low_ledge", (m["rules"], m["width_m"])
-        assert abs(m["width_m"] / W - 1) < 0.01 and abs(m["width_m"] - W) < 2 * m["uncertainty_m"]["width"], m["width_m"]
+        assert abs(m["width_m"] / W - 1) < 0.02 and abs(m["width_m"] - W) < m["uncertainty_m"]["width"], m["width_m"]
         assert m["width_walls_m"] == off["width_m"] and m["width_wall_edges_m"] == tuple(off["edges_m"]["width"])
         assert any("low on the truck" in w for w in m["warnings"]), m["warnings"]
     # A plain box: its low slices stand where its walls do, nothing moves.
@@ -692,6 +697,27 @@ def test_a_flatbeds_deck_is_read_from_its_slice_where_the_cab_makes_the_outer_pe
     a = measure_dimensions(clean, resolution_m=0.004, noise_m=0.002)
     b = measure_dimensions(clean, resolution_m=0.004, noise_m=0.002, config=replace(DimensionConfig(), ledge_blurs=None))
     assert a["width_m"] == b["width_m"] and a["rules"]["width"] == b["rules"]["width"] != "low_ledge"
+
+
+def test_a_fused_decks_edge_is_where_its_points_end_not_a_walls_blur_inside_it():
+    """Fusion leaves a thin deck's edge short of the truth (a median 1.6 % of W inside it on each side, 98 sides
+    of 49 flatbeds: README, known limitations): on the tuning seeds' full-scale flatbeds even the deck slice's
+    half-height crossing lies inside the deck's true edge (widths read by it -0.2 to -2.9 %). Taking the walls' peak-to-edge offset off that crossing as well, as for a wall
+    (``ledge_less_walls_offset``), read those decks 1.5-3 % narrow, and where the deck stood less than 2 blurs
+    out after that offset, not at all: seed 2075's draw 31 read -5.1 %, seed 2070's draw 16 -4.6 %. Here the
+    deck's strip and face end 1 cm (0.4 % of W, under a blur) inside its edge: with the offset taken off (and
+    the 2 blurs the test then asked) no ledge is found and the width is the cab's, -3.0 % at 0.45 % sigma; the
+    slice's edge as it is, 2.5 blurs out, reads +0.6 / +0.7 %, inside 2 sigma."""
+    W = 2.57
+    for seed in range(2):
+        xyz = _envelope_flatbed(np.random.default_rng(seed), W=W, eroded_m=0.01)
+        old = measure_dimensions(xyz, resolution_m=0.016, noise_m=0.012,
+                                 config=replace(DimensionConfig(), ledge_less_walls_offset=True, ledge_blurs=2.0))
+        assert old["rules"]["width"] != "low_ledge" and W - old["width_m"] > 5 * old["uncertainty_m"]["width"], (
+            old["rules"], old["width_m"], old["uncertainty_m"])
+        m = measure_dimensions(xyz, resolution_m=0.016, noise_m=0.012)
+        assert m["rules"]["width"] == "low_ledge", (m["rules"], m["width_m"])
+        assert abs(m["width_m"] / W - 1) < 0.01 and abs(m["width_m"] - W) < 2 * m["uncertainty_m"]["width"], m["width_m"]
 
 
 def _flared_box(rng, L=2.0, W=0.4, H=0.4, flare=0.08, n=40_000, sigma=0.003):

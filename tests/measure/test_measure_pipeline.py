@@ -163,6 +163,9 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
     assert config_from_dict({"ledge_blurs": None, "ledge_min_cover": 0.6}).ledge_min_cover == 0.6
     assert config_from_dict({"ledge_below_blurs": None}).ledge_below_blurs is None
     assert config_from_dict({"ledge_below_blurs": 0}).ledge_below_blurs == 0.0
+    assert config_from_dict({"ledge_less_walls_offset": True}).ledge_less_walls_offset is True
+    with pytest.raises(ConfigError, match="ledge_less_walls_offset must be true or false"):
+        config_from_dict({"ledge_less_walls_offset": 1})
     with pytest.raises(ConfigError, match="ledge_below_blurs"):
         config_from_dict({"ledge_below_blurs": -1})
     with pytest.raises(ConfigError, match="ledge_slice_share"):
