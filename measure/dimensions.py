@@ -236,8 +236,8 @@ class DimensionConfig:
                                        # ``low_ledge``; the reading before is the other one the uncertainty
                                        # spans). None: off. Measured: docs/ROUNDS.md, issue 12's thirty-sixth round;
                                        # 2.5 since the forty-sixth, where the edge is no longer taken in by the
-                                       # walls' peak-to-edge offset (about 1.2 blurs; 2 before): at 2 a model
-                                       # box's foot (the sample's) read W +3.0 % as a ledge
+                                       # walls' peak-to-edge offset (about 1.2 blurs; 2 before): at 2 a false
+                                       # ledge on the sample's model box read its W +3.0 %
     ledge_slice_share: float = 0.025
     ledge_max_height: float = 0.5
     ledge_min_cover: float = 0.5
@@ -971,8 +971,9 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
     the median over the upper slices, half the top up to 0.95 of it, in 0.05 steps, as if it were a wall). A
     side has a ledge where its low slices' outermost edge lies beyond the side's reading, and beyond the walls'
     own edges (the ``ledge_walls_quantile`` of the upper slices' edges), both by more than ``ledge_blurs``
-    blurs: a plain box's low slices stand where its walls do. Only slices standing out of a lower slice by ``ledge_below_blurs`` blurs count: a deck sits on
-    a narrower chassis, a wall's foot flaring into the ground widens down to the lowest slice. The side moves
+    blurs: a plain box's low slices stand where its walls do. Only slices standing out of a lower slice by
+    ``ledge_below_blurs`` blurs count: a deck sits on a narrower chassis, a wall's foot flaring into the ground
+    widens down to the lowest slice. The side moves
     out to it. The caller leaves a rounded flank (``curved_flank_vertex``, widest
     at its own height) alone. The reading before becomes the other reading the uncertainty spans
     (``width_walls_m``); the face gates still look for the walls at its edges.
@@ -993,7 +994,8 @@ def _low_ledge(out: dict, rules: dict, ends: dict, a: np.ndarray, b: np.ndarray,
         if not upper or not low:
             continue
         edge_low = max(r[1] for r in low)
-        shift = edge_low - (float(np.median([r[1] - r[0] for r in upper])) if cfg.ledge_less_walls_offset else 0.0)
+        offset = float(np.median([r[1] - r[0] for r in upper])) if cfg.ledge_less_walls_offset else 0.0
+        shift = edge_low - offset
         # Beyond the side's reading and beyond the walls' own edges too: the reading may lie off the walls
         # (a shoulder's edge, or the walls' plateau centred between peaks a sheared top pulled aside); and
         # beyond most of the walls' slices, not their median: a wall's edge wanders over its height (a paint
