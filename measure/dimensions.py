@@ -204,18 +204,25 @@ class DimensionConfig:
                                        # half its bulge); the height is then the top 0.5 % of the points
                                        # (rule ``rounded_top_99.5``), and the uncertainty still spans the
                                        # level found. None: off. Measured: docs/ROUNDS.md, issue 12's thirteenth round
-    wall_plateau_slices: int | None = 9  # vertical side walls are read from the width's height profile: the
-                                       # widest running median of this many of its slices (45 % of the top)
+    wall_plateau_slices: int | None = 13  # vertical side walls are read from the width's height profile: the
+                                       # widest running median of this many of its slices (65 % of the top;
+                                       # a box body's walls span at least two thirds of its height)
                                        # replaces the peaks' reading (rule ``wall_plateau``), whose
                                        # projection over all heights a rim flaring at the roof's or floor's
                                        # edge, a tilted fused wall or a panel's paint stripe widens or
                                        # narrows. Only stretches starting above ``flank_min_height`` count,
                                        # and none where one starting lower is wider by more than the walls'
-                                       # blur (a deck, the wheels and a cab wider than a flatbed's load:
-                                       # the shoulder rule finds a deck's one-slice edge, the plateau reads
-                                       # the load), nor on a rounded flank (``curved_flank_vertex``); the
-                                       # uncertainty spans the peaks' reading too. None: off. Measured:
-                                       # docs/ROUNDS.md, issue 12's fourteenth round
+                                       # blur (``wall_plateau_low_slices``), nor on a rounded flank
+                                       # (``curved_flank_vertex``); the uncertainty spans the peaks' reading
+                                       # too. None: off. Measured: docs/ROUNDS.md, issue 12's fourteenth
+                                       # round; 13 since the forty-seventh (9 before: the widest of many short
+                                       # stretches' medians is a noisy wall's widest, +2.9 % on 19 full-scale
+                                       # boxes' tuning clouds)
+    wall_plateau_low_slices: int = 9   # ... the stretches of this many slices the test compares: one starting
+                                       # below ``flank_min_height`` wider than all starting above (a flatbed's
+                                       # deck, wheels and cab beside its narrower load: the shoulder rule
+                                       # finds a deck's one-slice edge, the plateau would read the load). Short
+                                       # enough that a stretch from the ground is mostly deck and cab
     wall_plateau_max_top_drop: float = 0.07  # ... and only under a top seen flat: its profile across the width
                                        # (``rounded_top_drop``) falls by less than this share of the top
     wall_plateau_min_outside_height: float = 0.5  # ... and where the peaks read wider, only when the points
@@ -890,19 +897,25 @@ def _curved_flank(out: dict, rules: dict, ends: dict, zs: np.ndarray, widths: np
     rules["width"] = "curved_flank_vertex"
 
 
-def wall_plateau(widths: np.ndarray, window: int, first: int, tol: float = 0.0) -> tuple[float, int] | None:
+def wall_plateau(widths: np.ndarray, window: int, first: int, tol: float = 0.0,
+                 low_window: int | None = None) -> tuple[float, int] | None:
     """The side walls' widest stretch in a width profile (``width_profile``): the highest median over
     ``window`` consecutive slices, a majority of them valid, among the stretches starting at slice ``first``
     or above, and the index of its first slice. None when no such stretch has a majority, or when a stretch
-    starting lower is wider by more than tol (m): the widest part then stands on the ground (a flatbed's
-    deck, wheels and cab beside its narrower load), not the body's walls. widths: per slice (m, NaN where a
-    slice does not count).
+    of ``low_window`` slices (default: window) starting lower is wider by more than tol (m) than all of that
+    length starting at first or above: the widest part then stands on the ground (a flatbed's deck, wheels
+    and cab beside its narrower load), not the body's walls. widths: per slice (m, NaN where a slice does
+    not count).
     """
-    up = max(window_stats(widths, window, range(first, len(widths) - window + 1), np.median), default=None,
-             key=lambda r: r[0])
-    low = max(window_stats(widths, window, range(0, min(first, len(widths) - window + 1)), np.median), default=None,
-              key=lambda r: r[0])
-    if up is None or (low is not None and low[0] > up[0] + tol):
+    def widest(w: int, starts: range):
+        return max(window_stats(widths, w, starts, np.median), default=None, key=lambda r: r[0])
+
+    low_window = window if low_window is None else low_window
+    n = len(widths)
+    up = widest(window, range(first, n - window + 1))
+    up_low = up if low_window == window else widest(low_window, range(first, n - low_window + 1))
+    low = widest(low_window, range(0, min(first, n - low_window + 1)))
+    if up is None or (low is not None and (up_low is None or low[0] > up_low[0] + tol)):
         return None
     return up
 
@@ -920,7 +933,7 @@ def _plateau_width(out: dict, rules: dict, ends: dict, widths: np.ndarray, blur:
     still look for the walls at the peaks' edges.
     """
     first = int(np.ceil(cfg.flank_min_height * len(widths) - 1e-9))
-    r = wall_plateau(widths, cfg.wall_plateau_slices, first, blur)
+    r = wall_plateau(widths, cfg.wall_plateau_slices, first, blur, cfg.wall_plateau_low_slices)
     if r is None or abs(r[0] - out["width_m"]) <= blur:
         return
     w0, w1 = ends["width"]

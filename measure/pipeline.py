@@ -154,8 +154,9 @@ class MeasureConfig:
     roof_facing_cos: float | None = 0.7      # paper's peaks of all points; see measure.dimensions.DimensionConfig)
     curved_flank_min_drop: float | None = 0.02  # a rounded body's width at its widest height (None: off; see
                                                 # measure.dimensions.DimensionConfig)
-    wall_plateau_slices: int | None = 9         # vertical walls' width from the profile's widest stretch of this many
+    wall_plateau_slices: int | None = 13        # vertical walls' width from the profile's widest stretch of this many
                                                 # height slices of 20 (None: off; see measure.dimensions.DimensionConfig)
+    wall_plateau_low_slices: int = 9            # ... none where a stretch of this many from the ground is wider
     wall_plateau_max_top_drop: float = 0.07     # ... under a top seen flat (rounded_top_drop below this)
     wall_plateau_min_outside_height: float = 0.5  # ... and, where the peaks read wider, with the points outside it at
                                                 # a median height of at least this share of the top
@@ -231,6 +232,8 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
         v = int(v) if want_int else float(v)
         if not np.isfinite(v) or (v < 0) or (v == 0 and k not in ("seed", "bootstrap", "ledge_below_blurs") and not isinstance(d, int)):
             raise ConfigError(f"{where}: {k} must be a positive number, got {v!r}")
+        if k in ("wall_plateau_slices", "wall_plateau_low_slices") and v < 1:   # a stretch of no slices reads nothing
+            raise ConfigError(f"{where}: {k} must be at least 1 (slices), got {v!r}")
         if k in ("roof_cells_quantile", "ledge_walls_quantile") and v > 1:
             raise ConfigError(f"{where}: {k} is a quantile, at most 1, got {v!r}")
         if k in ("wall_facing_cos", "roof_facing_cos", "end_facing_cos") and v > 1:  # above 1 no point faces: the paper's reading unasked

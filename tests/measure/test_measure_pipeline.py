@@ -168,6 +168,12 @@ def test_config_rejects_unknown_keys_and_bad_values(tmp_path):
         config_from_dict({"ledge_less_walls_offset": 1})
     with pytest.raises(ConfigError, match="ledge_below_blurs"):
         config_from_dict({"ledge_below_blurs": -1})
+    # And the walls' plateau's two stretch lengths (the reading's and the lower-stretch test's).
+    assert config_from_dict({"wall_plateau_slices": 9, "wall_plateau_low_slices": 7}).wall_plateau_low_slices == 7
+    with pytest.raises(ConfigError, match="wall_plateau_low_slices must be an integer"):
+        config_from_dict({"wall_plateau_low_slices": 8.5})
+    with pytest.raises(ConfigError, match="wall_plateau_low_slices"):
+        config_from_dict({"wall_plateau_low_slices": 0})
     with pytest.raises(ConfigError, match="ledge_slice_share"):
         config_from_dict({"ledge_slice_share": -0.1})
     with pytest.raises(ConfigError, match="ledge_walls_quantile is a quantile, at most 1"):
