@@ -98,6 +98,12 @@ class MeasureConfig:
                                              # points reaching this x its height follow each other within the merge
                                              # gap (a cab seen obliquely, in scraps; None: off; see
                                              # measure.truck.join_end_scraps)
+    side_by_side_split: bool = True          # a truck's points holding two vehicles side by side, nothing standing
+                                             # between them (ground scraps in a narrow gap linked them), are split
+                                             # and the one at the centre hint kept (see
+                                             # measure.truck.side_by_side_vehicles; False: off)
+    side_by_side_max_height_to_width: float = 2.0  # ... when each is at most this x as tall as wide (a whole vehicle)
+    side_by_side_min_along_overlap: float = 0.5    # ... and they overlap along by this share of the shorter
     opposite_side_max_offset_rel: float | None = 0.1  # with an orbit's centre as the hint lying beside the truck's parts,
                                              # the cluster across it that is the truck's other side joins them when
                                              # the two centre on the hint within this x their length (None: off;
@@ -236,6 +242,8 @@ def config_from_dict(data: dict, where: str = "config") -> MeasureConfig:
             raise ConfigError(f"{where}: {k} must be at least 1 (slices), got {v!r}")
         if k in ("roof_cells_quantile", "ledge_walls_quantile") and v > 1:
             raise ConfigError(f"{where}: {k} is a quantile, at most 1, got {v!r}")
+        if k == "side_by_side_min_along_overlap" and v > 1:
+            raise ConfigError(f"{where}: {k} is a share of the shorter vehicle's length, at most 1, got {v!r}")
         if k in ("wall_facing_cos", "roof_facing_cos", "end_facing_cos") and v > 1:  # above 1 no point faces: the paper's reading unasked
             raise ConfigError(f"{where}: {k} is a cosine, at most 1 (null for the paper's peaks of all points), got {v!r}")
         kw[k] = v
@@ -438,6 +446,12 @@ def measure_points(points_xyz: np.ndarray, config: MeasureConfig = MeasureConfig
         dims = measure_dimensions(truck, res, noise_m=noise_m, config=dcfg, rng=rng, body_brightness=brightness)
     timings["dimensions"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_all
+    if "side_by_side" in cstats:
+        o = cstats["side_by_side"]["other_vehicle_m"]
+        dims["warnings"] = [*dims.get("warnings", []),
+                            f"a second vehicle ({o[0]:.3g} x {o[1]:.3g} x {o[2]:.3g} m) stood beside the truck and was clustered "
+                            f"with it; the two were split at the gap between them and "
+                            f"{'the one at the orbit centre' if cstats['side_by_side']['rule'] == 'nearest_to_centre_hint' else 'the larger'} measured"]
 
     params = dataclasses.asdict(cfg)
     params["resolved"] = {"resolution_m": res, "ground_band_m": g.xi, "ground_thickness_m": g.d_h, "eps_m": eps,
@@ -752,9 +766,47 @@ def _truck_at(above: np.ndarray, xyz_g: np.ndarray, centre_xy, cfg: MeasureConfi
             parts = joined
             in_truck = np.isin(labels, parts)
         cstats["merged_labels"] = parts
+        if cfg.side_by_side_split:
+            in_truck = _one_of_side_by_side(xyz_g, in_truck, centre_xy, cfg, filt, res, ground_m, cstats, source)
     finally:
         timings["truck"] = timings.get("truck", 0.0) + time.perf_counter() - t
     return xyz_g[in_truck], in_truck, filt, cstats
+
+
+def _one_of_side_by_side(xyz_g: np.ndarray, in_truck: np.ndarray, centre_xy, cfg: MeasureConfig, filt, res: float,
+                         ground_m: float, cstats: dict, source: str) -> np.ndarray:
+    """The truck's mask when its points hold two vehicles side by side (``measure.truck.side_by_side_vehicles``):
+    the one at the centre hint (else the larger; StageError when that is ambiguous or it is not truck-like),
+    else ``in_truck`` unchanged. Records the split in cstats['side_by_side']."""
+    from measure.truck import _choose, _filter_reason, check_hint_distance, cuboid, side_by_side_vehicles
+
+    idx = np.flatnonzero(in_truck)
+    pieces = side_by_side_vehicles(xyz_g[idx], res, ground_m, max_height_to_width=cfg.side_by_side_max_height_to_width,
+                                   min_along_overlap=cfg.side_by_side_min_along_overlap)
+    if pieces is None:
+        return in_truck
+    boxes = [cuboid(xyz_g[idx[m], :2], xyz_g[idx[m], 2]) for m in pieces]
+    dims = " and ".join(f"{b['length_m']:.3g} x {b['width_m']:.3g} x {b['height_m']:.3g} m" for b in boxes)
+    try:
+        k, rule = _choose(list(enumerate(boxes)), filt, centre_xy, source)
+    except StageError as err:
+        raise StageError("measure", f"{source}: two vehicles stand side by side in one cluster ({dims}) and neither is "
+                                    f"clearly the truck: {str(err).removeprefix('measure: ')}") from None
+    why = _filter_reason(boxes[k], filt)
+    if why is not None:
+        raise StageError("measure", f"{source}: two vehicles stand side by side in one cluster ({dims}); the one chosen "
+                                    f"({rule.replace('_', ' ')}) is not truck-like: {why[1]}")
+    out = np.zeros_like(in_truck)
+    out[idx[pieces[k]]] = True
+    if centre_xy is not None and cfg.max_hint_distance_rel is not None:
+        cstats["hint_distance_m"] = check_hint_distance(xyz_g[out], centre_xy, cfg.max_hint_distance_rel, source)
+    other = boxes[1 - k]
+    cstats["side_by_side"] = {"rule": rule, "kept_points": int(out.sum()), "other_vehicle_points": int(pieces[1 - k].sum()),
+                              "gap_points": int(len(idx) - pieces[0].sum() - pieces[1].sum()),
+                              "other_vehicle_m": [other["length_m"], other["width_m"], other["height_m"]]}
+    log.info("measure: %s: two vehicles side by side in one cluster (%s): kept the one %s", source, dims,
+             rule.replace("_", " "))
+    return out
 
 
 def combined_uncertainty(values_m: dict, measurement_u_m: dict, reconstruction_rel_sigma: dict | None,

@@ -24,7 +24,9 @@ Then clusters continuing the chosen one along its length within a small gap (a c
 the box was not reconstructed) join it (:func:`merge_truck_parts`); vehicles beside the truck, or
 in line beyond the gap, never do. Once the truck stands at the hint, the scraps that continue it
 beyond either end within its width (a cab seen obliquely, in pieces too small to be parts) join it
-too (:func:`join_end_scraps`).
+too (:func:`join_end_scraps`). Last, a truck whose points hold two vehicles side by side, linked by
+ground scraps in the gap between them, is split there (:func:`side_by_side_vehicles`; the measure stage
+keeps the one at the hint).
 """
 
 from __future__ import annotations
@@ -356,6 +358,84 @@ def join_opposite_side(xyz_ground: np.ndarray, labels: np.ndarray, parts: list[i
     if not joined or (hi - lo) < min_length_to_width * (far - back):
         return sorted(parts)
     return sorted([*parts, *joined])
+
+
+def side_by_side_vehicles(xyz_ground: np.ndarray, res_m: float, ground_m: float = 0.0, cell_res: float = 3.0,
+                          cell_height_rel: float = 0.04, low_rel: float = 0.1, min_share: float = 0.1,
+                          max_height_to_width: float = 2.0, min_length_to_width: float = 1.3,
+                          min_along_overlap: float = 0.5) -> list[np.ndarray] | None:
+    """Masks (N,) bool over ``xyz_ground`` of two vehicles standing side by side within one truck's points, or None
+    when they are one vehicle.
+
+    Ground scraps left in a narrow gap between two parked vehicles, or a smear fused across it, link them into one
+    FoF cluster (held-out draw 2077/2: a 1.0 m model box and a second one 0.15 m beside it, measured as one
+    0.44 m wide truck, W +200 % at 28 sigma). Seen from above, the points standing clear of the ground
+    (above ``low_rel`` x the top and twice the ground's removal thickness ``ground_m``) then fall in two
+    footprints with nothing standing between them. The footprint is rasterized at ``cell_res`` x the point
+    spacing ``res_m`` or ``cell_height_rel`` x the top, whichever is coarser (holes of a point spacing or two
+    close), one-cell holes closed, and its 8-connected pieces of at least ``min_share`` of the cells kept. The
+    two largest are two vehicles when each is shaped like a whole one (at most ``max_height_to_width`` x as tall as
+    wide: 0.5-1.2 over the envelope's trucks, see :func:`join_opposite_side`; at least ``min_length_to_width`` x
+    as long as wide) and they lie side by side (their ranges along the larger's axis overlap by
+    ``min_along_overlap`` of the shorter's, their ranges across it do not). One truck's pieces are not so: a
+    side wall whose roof was lost is thin and tall, a cab across a gap lies in line, a tank's two flanks are
+    each taller than wide (on the 330 clouds of seeds 2062-2077 and Table 2 the pieces of one truck never
+    passed; docs/ROUNDS.md, the forty-eighth round).
+    The points beyond the gap between the two footprints go with the vehicle on their side; those in it with
+    neither. xyz_ground: (N, 3) points in the ground frame (m).
+    """
+    from scipy import ndimage
+
+    z = xyz_ground[:, 2]
+    if len(z) < 10:
+        return None
+    top = float(np.quantile(z, 0.99))
+    if top <= 0:
+        return None
+    cell = max(cell_res * res_m, cell_height_rel * top)
+    standing = z > max(2.0 * ground_m, low_rel * top)
+    if standing.sum() < 10:
+        return None
+    origin = xyz_ground[:, :2].min(axis=0)
+    ij = np.floor((xyz_ground[:, :2] - origin) / cell).astype(np.int64)
+    shape = tuple(ij.max(axis=0) + 1)
+    occ = np.zeros(shape, bool)
+    occ[ij[standing, 0], ij[standing, 1]] = True
+    occ |= ndimage.binary_closing(occ, border_value=0)
+    lab, n = ndimage.label(occ, structure=np.ones((3, 3), bool))
+    if n < 2:
+        return None
+    sizes = np.bincount(lab.ravel())[1:]
+    big = np.argsort(-sizes)[:2]
+    if sizes[big[1]] < min_share * sizes.sum():
+        return None
+    pieces = []
+    for k in big:
+        m = standing & (lab[ij[:, 0], ij[:, 1]] == k + 1)
+        q = xyz_ground[m]
+        c = q[:, :2].mean(axis=0)
+        _, _, vt = np.linalg.svd((q[:, :2] - c)[:: max(1, len(q) // 20000)], full_matrices=False)
+        a0, a1 = np.quantile((q[:, :2] - c) @ vt[0], [0.005, 0.995])
+        b0, b1 = np.quantile((q[:, :2] - c) @ vt[1], [0.005, 0.995])
+        length, width, height = a1 - a0, b1 - b0, float(np.quantile(q[:, 2], 0.99))
+        if width <= 0 or height > max_height_to_width * width or length < min_length_to_width * width:
+            return None
+        pieces.append((q, vt[0]))
+    u1 = pieces[0][1]
+    u2 = np.array([-u1[1], u1[0]])
+    (a0, a1), (c0, c1) = [np.quantile(q[:, :2] @ u1, [0.005, 0.995]) for q, _ in pieces]
+    (b0, b1), (d0, d1) = [np.quantile(q[:, :2] @ u2, [0.005, 0.995]) for q, _ in pieces]
+    if min(a1, c1) - max(a0, c0) < min_along_overlap * min(a1 - a0, c1 - c0) or min(b1, d1) > max(b0, d0):
+        return None
+    # The gap is the band between the two footprints across the larger's axis: the points in it (ground scraps,
+    # the smear that linked them) belong to neither, those beyond it to the vehicle on their side.
+    across = xyz_ground[:, :2] @ u2
+    sign = 1.0 if b0 + b1 < d0 + d1 else -1.0    # the larger's footprint on the low side of the gap
+    near = (sign * pieces[0][0][:, :2] @ u2).max()
+    far = (sign * pieces[1][0][:, :2] @ u2).min()
+    if near > far:      # their outermost points reach into each other's range: split at the middle
+        near = far = 0.5 * (near + far)
+    return [sign * across <= near, sign * across >= far]
 
 
 def _filter_reason(box: dict, filt: TruckFilter) -> tuple[str, str] | None:
