@@ -923,12 +923,12 @@ def measure_cloud_file(cloud_path, out_dir, config: MeasureConfig = MeasureConfi
 
 def _quality_gates(m: Measurement, scale, units: str, name: str, strict_centre, checks, camera_centres) -> list[dict]:
     """Refuse a cloud that cannot be a vehicle; the data-quality gates: the given ``checks`` plus the truck's own."""
-    from measure.quality import check_centre, check_plausible, face_checks, orbit_checks
+    from measure.quality import check_centre, check_plausible, face_checks, orbit_checks, shape_checks
 
     check_plausible(m, scale, units, name)
     if strict_centre is not None:
         check_centre(m, strict_centre, name)
-    gates = list(checks or []) + face_checks(m)
+    gates = list(checks or []) + face_checks(m) + shape_checks(m)
     if camera_centres is not None and len(camera_centres):
         gates += orbit_checks(m, camera_centres)
     return gates

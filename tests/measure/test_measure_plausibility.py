@@ -412,3 +412,25 @@ def test_measurement_json_bytes_identical_for_identical_input(clouds, tmp_path):
     assert a == b
     assert b"created_utc" not in a and b"timings_s" not in a
     assert "created_utc" in json.loads((tmp_path / "a" / "measure_run.json").read_text())
+
+
+def test_two_vehicles_measured_as_one_are_undecided_by_their_shape(tmp_path):
+    """A width more than 1.8 x the height is no vehicle's (the envelope's trucks read at most 1.35 x): where two
+    vehicles side by side were measured as one (their split turned off here), the shape gate fails and every
+    verdict is undecided, not a confident width twice the truck's."""
+    from measure.pipeline import MeasureConfig, measure_cloud_file
+
+    L, W = MODEL_TRUCK.length_m, MODEL_TRUCK.width_m
+    gap = 0.5 * W
+    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, ground_margin=0.3, second_vehicle_gap_m=gap), rng=21)
+    r = np.random.default_rng(3)
+    scraps = np.c_[r.uniform(0.1 * L, 0.8 * L, 6000), r.uniform(W / 2, W / 2 + gap, 6000), r.uniform(0.025, 0.045, 6000)]
+    cloud = write_cloud(tmp_path / "two.ply", np.concatenate([pts, scraps @ truth["rotation"].T + truth["translation"]]))
+    joined = measure_cloud_file(cloud, tmp_path / "joined", MeasureConfig(side_by_side_split=False), scale=8.0,
+                                plots=False, html=False)
+    shape = {c["name"]: c for c in joined["data_quality"]["checks"]}["vehicle_shape"]
+    assert joined["width_m"] > 2 * W and shape["status"] == "fail" and "side by side" in shape["detail"]
+    assert joined["verdict"]["overall"] == "undecided" and "vehicle_shape" in joined["verdict"]["reason"]
+    split = measure_cloud_file(cloud, tmp_path / "split", scale=8.0, plots=False, html=False)
+    assert {c["name"]: c for c in split["data_quality"]["checks"]}["vehicle_shape"]["status"] == "pass"
+    assert abs(split["width_m"] / W - 1) < 0.01
