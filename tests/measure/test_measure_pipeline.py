@@ -634,8 +634,9 @@ def _bridge(truth, x_m, y_m, z_m, n, rng):
 
 
 def test_two_vehicles_linked_by_ground_scraps_are_split_at_the_gap():
-    """Held-out draw 2077/2: a model box and a second one parked 0.15 m beside it were linked by the ground scraps
-    left in the gap into one cluster, measured as one truck (W +200 % at 28 sigma, no gate refusing it). Nothing
+    """Evaluation draw 2077/2 (the forty-seventh round's report): a model box and a second one parked 0.15 m
+    beside it were linked by the ground scraps left in the gap into one cluster, measured as one truck (W +200 %
+    at 28 sigma, no gate refusing it). Nothing
     stands between them above the scraps: split there, the truck at the orbit's centre reads within 1 %, the
     second vehicle when the hint is on it, the larger without a hint."""
     L, W, H = MODEL_TRUCK.length_m, MODEL_TRUCK.width_m, MODEL_TRUCK.height_m
