@@ -369,8 +369,9 @@ def side_by_side_vehicles(xyz_ground: np.ndarray, res_m: float, ground_m: float 
 
     Ground scraps left in a narrow gap between two parked vehicles, or a smear fused across it, link them into one
     FoF cluster (evaluation draw 2077/2, the forty-seventh round's report: a 1.0 m model box and a second one
-    0.15 m beside it, measured as one 0.44 m wide truck, W +200 % at 28 sigma). Seen from above, the points standing clear of the ground
-    (above ``low_rel`` x the top and twice the ground's removal thickness ``ground_m``) then fall in two
+    0.15 m beside it, measured as one 0.44 m wide truck, W +200 % at 28 sigma). Seen from above, the points
+    standing clear of the ground (above ``low_rel`` x the top and twice the ground's removal thickness
+    ``ground_m``) then fall in two
     footprints with nothing standing between them. The footprint is rasterized at ``cell_res`` x the point
     spacing ``res_m`` or ``cell_height_rel`` x the top, whichever is coarser (holes of a point spacing or two
     close), one-cell holes closed, and its 8-connected pieces of at least ``min_share`` of the cells kept. The
@@ -379,8 +380,8 @@ def side_by_side_vehicles(xyz_ground: np.ndarray, res_m: float, ground_m: float 
     as long as wide) and they lie side by side (their ranges along the larger's axis overlap by
     ``min_along_overlap`` of the shorter's, their ranges across it do not). One truck's pieces are not so: a
     side wall whose roof was lost is thin and tall, a cab across a gap lies in line, a tank's two flanks are
-    each taller than wide (on the 330 clouds of seeds 2062-2077 and Table 2 the pieces of one truck never
-    passed; docs/ROUNDS.md, the forty-eighth round).
+    each taller than wide (on the 349 clouds of seeds 2070-2077, the 12 tuning draws of 2062-2066 and Table 2
+    the pieces of one truck never passed; docs/ROUNDS.md, the forty-eighth round).
     The points beyond the gap between the two footprints go with the vehicle on their side; those in it with
     neither. xyz_ground: (N, 3) points in the ground frame (m).
     """
