@@ -74,6 +74,9 @@ class SceneSpec:
     camera_frame: bool = False            # True: express the scene in an OpenCV-like frame (up = -y)
     translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     second_vehicle_gap_m: float | None = None   # a parked box-shaped vehicle beside the truck at this gap
+    second_vehicle_scraps_m: tuple[float, float] | None = None  # ground scraps standing between these heights fill
+                                          # that gap along the vehicle, twice the surfaces' density (label 0): they
+                                          # link the two into one FoF cluster, as a narrow gap's do in a fused cloud
     distractors: int = 0                  # small objects (posts, cones, boxes) scattered on the ground
     partial_faces: dict[str, float] = field(default_factory=dict)  # face name -> fraction of points kept
     density_gradient: float = 0.0         # 0: uniform; g: density varies by factor (1+g) front-to-back
@@ -258,6 +261,12 @@ def make_truck_scene(shape: TruckShape = FULL_TRUCK, spec: SceneSpec = SceneSpec
         other = np.concatenate(list(_sample_box(rng, lo, hi, sp).values()))
         clouds.append(other)
         labels.append(np.full(len(other), 2))
+        if spec.second_vehicle_scraps_m is not None:
+            n = int(2 * 0.7 * L * g / sp**2)
+            scraps = np.c_[rng.uniform(0.1 * L, 0.8 * L, n), rng.uniform(W / 2, W / 2 + g, n),
+                           rng.uniform(*spec.second_vehicle_scraps_m, n)]
+            clouds.append(scraps)
+            labels.append(np.full(n, 0))
     margin = spec.ground_margin * L
     glo = np.array([-margin, -W / 2 - margin, 0.0])
     ghi = np.array([L + margin, W / 2 + margin, 0.0])

@@ -636,14 +636,13 @@ def _bridge(truth, x_m, y_m, z_m, n, rng):
 def test_two_vehicles_linked_by_ground_scraps_are_split_at_the_gap():
     """Evaluation draw 2077/2 (the forty-seventh round's report): a model box and a second one parked 0.15 m
     beside it were linked by the ground scraps left in the gap into one cluster, measured as one truck (W +200 %
-    at 28 sigma, no gate refusing it). Nothing
-    stands between them above the scraps: split there, the truck at the orbit's centre reads within 1 %, the
-    second vehicle when the hint is on it, the larger without a hint."""
-    L, W, H = MODEL_TRUCK.length_m, MODEL_TRUCK.width_m, MODEL_TRUCK.height_m
+    at 28 sigma, no gate refusing it). Nothing stands between them above the scraps: split there, the truck at
+    the orbit's centre reads within 1 %, the second vehicle when the hint is on it, the larger without a hint."""
+    L, W = MODEL_TRUCK.length_m, MODEL_TRUCK.width_m
     gap = 0.5 * W
-    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, ground_margin=0.3, second_vehicle_gap_m=gap), rng=21)
     # Scraps standing up to 0.045 m (about twice the ground's removal thickness, 0.024 m here) fill the gap.
-    cloud = np.concatenate([pts, _bridge(truth, (0.1 * L, 0.8 * L), (W / 2, W / 2 + gap), (0.025, 0.045), 6000, 3)])
+    cloud, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, ground_margin=0.3, second_vehicle_gap_m=gap,
+                                                           second_vehicle_scraps_m=(0.025, 0.045)), rng=21)
     joined = measure_points(cloud, MeasureConfig(side_by_side_split=False), centre_hint=truth["truck_centre"])
     assert joined.width_m > 2 * W     # the failure: both vehicles measured as one
     m = measure_points(cloud, centre_hint=truth["truck_centre"])

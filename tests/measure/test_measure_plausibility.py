@@ -420,12 +420,11 @@ def test_two_vehicles_measured_as_one_are_undecided_by_their_shape(tmp_path):
     verdict is undecided, not a confident width twice the truck's."""
     from measure.pipeline import MeasureConfig, measure_cloud_file
 
-    L, W = MODEL_TRUCK.length_m, MODEL_TRUCK.width_m
+    W = MODEL_TRUCK.width_m
     gap = 0.5 * W
-    pts, truth = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, ground_margin=0.3, second_vehicle_gap_m=gap), rng=21)
-    r = np.random.default_rng(3)
-    scraps = np.c_[r.uniform(0.1 * L, 0.8 * L, 6000), r.uniform(W / 2, W / 2 + gap, 6000), r.uniform(0.025, 0.045, 6000)]
-    cloud = write_cloud(tmp_path / "two.ply", np.concatenate([pts, scraps @ truth["rotation"].T + truth["translation"]]))
+    pts, _ = make_truck_scene(MODEL_TRUCK, SceneSpec(spacing_m=0.01, ground_margin=0.3, second_vehicle_gap_m=gap,
+                                                     second_vehicle_scraps_m=(0.025, 0.045)), rng=21)
+    cloud = write_cloud(tmp_path / "two.ply", pts)
     joined = measure_cloud_file(cloud, tmp_path / "joined", MeasureConfig(side_by_side_split=False), scale=8.0,
                                 plots=False, html=False)
     shape = {c["name"]: c for c in joined["data_quality"]["checks"]}["vehicle_shape"]
