@@ -27,7 +27,8 @@ translation puts the ground at height 0, so z' is the height above the fitted gr
   extreme (a rounded or sparse cab). Fallback: robust extent. When both ends' own facing points
   peak inside those peaks by more than the blur, the ends move in to them (``end_facing_cos``: a
   roof's and walls' smear past both faces along the rays). An end peak beyond the extent of the points
-  above the ground's skirt is no end (``length_min_height``). An end moves out to a face that a stretch
+  above the ground's skirt is no end (``length_min_height``), and the skirt moves no end's extreme past
+  that extent (``length_extreme_above_skirt``). An end moves out to a face that a stretch
   of heights holds beyond it (``end_step_blurs``: a cab's nose ahead of its set-back windscreen).
 Every number records the rule that produced it, and an uncertainty from a Poisson bootstrap of
 the binned projections plus the point spacing and the noise measured on the ground, plus the gap to
@@ -321,6 +322,16 @@ class DimensionConfig:
                                        # 7.6 m box with a black cab: its front read 0.20 m ahead of the cab,
                                        # L +3.5 %). On 53 tuning clouds: L mean 0.99 -> 0.93 %, p90 2.18 ->
                                        # 2.11 %, over 3 %: 2 -> 1. Measured: docs/ROUNDS.md, issue 12's 33rd round
+    length_extreme_above_skirt: bool = True  # ... and the length's robust extremes (where an end without a face
+                                       # peak is read, and from which the end windows look for one) lie within
+                                       # two blurs of theirs too. Why: a skirt spread past an end the orbit
+                                       # did not cover moved all points' extreme out; the end's face peak then
+                                       # fell outside the window and the end was read at the skirt's edge (L +4
+                                       # to +13 %, mostly refused by the end's face gate). On seeds 2070-2078
+                                       # (360 draws): face-gate refusals 25 -> 17, the 8 lifted read L within
+                                       # 2.3 % (1.1 sigma); L mean 0.90 -> 0.88 %, max 5.10 -> 4.25 %. False:
+                                       # all points' extremes (as before). Measured: docs/ROUNDS.md, issue 12's
+                                       # 49th round
     heading_wall_max_nz: float | None = 0.3  # the heading refinement (``refine_heading``) picks its direction
                                        # from the wall points' projection alone: those whose normal's vertical
                                        # part is below this (a surface within 17 deg of vertical); all points
@@ -1080,10 +1091,16 @@ def _length_rule(counts, grid, h, step, cfg: DimensionConfig, bounds=None, noise
     """The length (m) from the points' histogram on its axis (counts over grid, m; h: bandwidth, m): the rear
     end's peak to the front's, see the module docstring. bounds: the robust extremes (m) of the points above
     the ground's skirt (``length_min_height``; None: no bound): an end peak beyond them by more than two
-    blurs, 2 hypot(noise, h) (noise: the reconstruction's, m), is the skirt's, no end."""
+    blurs, 2 hypot(noise, h) (noise: the reconstruction's, m), is the skirt's, no end; all points' robust
+    extremes are held within that of them too (``length_extreme_above_skirt``)."""
     dens = smooth_counts(counts, step, h)
     pk = local_maxima(dens, cfg.peak_min_rel * 0.5)
     lo, hi = _robust_extremes(counts, grid, cfg.extreme_fraction)
+    if bounds is not None and cfg.length_extreme_above_skirt:
+        # The skirt moves all points' extremes out past an end: the end window then misses the face's peak,
+        # and an end without one is read at the skirt's edge.
+        tol = 2.0 * float(np.hypot(noise, h))
+        lo, hi = max(lo, bounds[0] - tol), min(hi, bounds[1] + tol)
     extent = hi - lo
     win = cfg.end_window * extent + 2 * h
     pos = np.array([refine_peak(grid, dens, int(i)) for i in pk])

@@ -185,6 +185,8 @@ class MeasureConfig:
     length_min_height: float | None = 0.15      # an end peak of the length beyond the extent of the points at or above
                                                 # this share of the top is the ground's skirt, no end (None: every
                                                 # peak, as the paper; see measure.dimensions.DimensionConfig)
+    length_extreme_above_skirt: bool = True     # ... nor are all points' extremes past theirs (see measure.dimensions.
+                                                # DimensionConfig)
     lattice_dither: bool = True                 # a fused cloud's lattice coordinates dithered one voxel along its
                                                 # surfaces and the width read on the dithers (measure.resolution.
                                                 # lattice_dither): the voxel planes comb the width's density, read at
