@@ -1096,18 +1096,18 @@ def _length_rule(counts, grid, h, step, cfg: DimensionConfig, bounds=None, noise
     dens = smooth_counts(counts, step, h)
     pk = local_maxima(dens, cfg.peak_min_rel * 0.5)
     lo, hi = _robust_extremes(counts, grid, cfg.extreme_fraction)
-    if bounds is not None and cfg.length_extreme_above_skirt:
-        # The skirt moves all points' extremes out past an end: the end window then misses the face's peak,
-        # and an end without one is read at the skirt's edge.
+    if bounds is not None:
         tol = 2.0 * float(np.hypot(noise, h))
-        lo, hi = max(lo, bounds[0] - tol), min(hi, bounds[1] + tol)
+        lo_e, hi_e = bounds[0] - tol, bounds[1] + tol   # the skirt's reach: the points above it, two blurs out
+        if cfg.length_extreme_above_skirt:
+            # The skirt moves all points' extremes out past an end: the end window then misses the face's peak,
+            # and an end without one is read at the skirt's edge.
+            lo, hi = max(lo, lo_e), min(hi, hi_e)
     extent = hi - lo
     win = cfg.end_window * extent + 2 * h
     pos = np.array([refine_peak(grid, dens, int(i)) for i in pk])
     if bounds is not None and len(pk):
-        lo_e, hi_e = bounds
-        tol = 2.0 * float(np.hypot(noise, h))
-        inside = (pos >= lo_e - tol) & (pos <= hi_e + tol)
+        inside = (pos >= lo_e) & (pos <= hi_e)
         pk, pos = pk[inside], pos[inside]
     val = dens[pk] if len(pk) else np.zeros(0)
     at_lo = pos <= lo + win
