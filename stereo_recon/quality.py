@@ -197,12 +197,30 @@ def trajectory_scale_check(counts: dict) -> dict | None:
     return check("trajectory_scale", "pass", f"camera path rescaled by {off:+.2f} % to the rig's depth")
 
 
+def pose_refinement_check(counts: dict) -> dict | None:
+    """Whether SfM's bundle adjustment refined odometry's poses (``counts["sfm_refine"]`` in run.json); None if not run.
+
+    Warns when it failed or was rejected (its poses far from odometry's: another solution, not a refinement):
+    the run then keeps odometry's poses, whose views turn by a few tenths of a degree at full scale.
+    """
+    refine = counts.get("sfm_refine")
+    if refine is None:
+        return None
+    if isinstance(refine, dict) and refine.get("rejected"):
+        return check("pose_refinement", "warn", f"bundle adjustment rejected: {refine['rejected']}; visual odometry's "
+                                                "poses kept")
+    if isinstance(refine, dict):
+        return check("pose_refinement", "pass", f"{refine.get('grafted_frames', 0)} views bundle-adjusted by SfM "
+                                                f"(median change {refine.get('turned_deg_median', 0.0):.2f} deg)")
+    return check("pose_refinement", "warn", f"bundle adjustment {refine}; visual odometry's poses kept")
+
+
 def checks_from_reconstruction(run: dict, config: RecordingQualityConfig = RecordingQualityConfig()) -> list[dict]:
-    """Gates from a reconstruction's ``run.json``: frames decoded against what the container announces, and
-    the camera path's scale against the rig's depth (far scenes)."""
+    """Gates from a reconstruction's ``run.json``: frames decoded against what the container announces, the
+    camera path's scale against the rig's depth (far scenes), and whether bundle adjustment refined the poses."""
     src, counts = run.get("source") or {}, run.get("counts") or {}
-    scale = trajectory_scale_check(counts)
-    return _frames_decoded_check(src, counts, config) + ([scale] if scale is not None else [])
+    extra = [c for c in (trajectory_scale_check(counts), pose_refinement_check(counts)) if c is not None]
+    return _frames_decoded_check(src, counts, config) + extra
 
 
 def _frames_decoded_check(src: dict, counts: dict, config: RecordingQualityConfig) -> list[dict]:

@@ -101,6 +101,12 @@ class ReconstructConfig:
     # before the finer voxel), for ~25 s of SfM (one thread) on 35 HD720 images. None = with motion stereo (far
     # scenes) only; if SfM fails, VO's poses are kept (logged, counts["sfm_refine"]).
     refine_poses_sfm: bool | None = None
+    # SfM's poses are kept only as a refinement of VO's: when, after the similarity, they lie further from
+    # VO's than refine_max_move_rel of the path's rms radius or refine_max_turn_deg (medians over the
+    # views), SfM has found another solution (a folded orbit, seen on a symmetric tanker: 0.49 and 35 deg)
+    # and VO's poses are kept (logged, counts["sfm_refine"]["rejected"]).
+    refine_max_move_rel: float = 0.2
+    refine_max_turn_deg: float = 10.0
     # TSDF settings; voxel_m None = derived from the first keyframe's depth.
     fusion: FusionConfig = FusionConfig()
     voxel_m: float | None = None
@@ -137,6 +143,9 @@ class ReconstructConfig:
         if self.refine_poses_sfm and self.poses != "vo":
             raise ConfigError(f"--refine-poses on: bundle adjustment refines visual odometry's poses (--poses vo), "
                               f"not --poses {self.poses}")
+        if not (self.refine_max_move_rel > 0 and self.refine_max_turn_deg > 0):
+            raise ConfigError(f"refine_max_move_rel={self.refine_max_move_rel}, refine_max_turn_deg="
+                              f"{self.refine_max_turn_deg}: must be > 0")
         if self.motion_stereo is not None and (self.poses == "sfm" or not self.fuse_by_pose or self.keyframes is None):
             raise ConfigError("motion stereo needs poses while streaming and views chosen by pose: --poses vo or "
                               "gt:PATH, without --all-frames")

@@ -360,13 +360,16 @@ def sfm_poses(
 
 
 def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work: Path, K: np.ndarray,
-                    baseline_m: float, fps: float | None, counts: dict) -> Trajectory:
+                    baseline_m: float, fps: float | None, counts: dict, max_move_rel: float = 0.2,
+                    max_turn_deg: float = 10.0) -> Trajectory:
     """VO's trajectory with the fused views' and partners' poses replaced by pycolmap SfM's (same world, scale).
 
     traj: VO's trajectory (rectified left camera, m); keyframes: the fused views' frame indices, images in
     work/images/<index>.png and depth in work/depth; partners: view -> motion-stereo partner frame, images in
-    work/partner/<view>.png; K (3,3) px and baseline_m (m): the rectified rig. Records the outcome in
-    counts["sfm_refine"]; on failure logs it and returns traj unchanged.
+    work/partner/<view>.png; K (3,3) px and baseline_m (m): the rectified rig. max_move_rel / max_turn_deg:
+    the largest median correction of VO's views that is still a refinement (a fraction of the path's rms
+    radius; degrees). Records the outcome in counts["sfm_refine"]; on failure, or when SfM's poses lie
+    further from VO's than that, logs it and returns traj unchanged.
     """
     import os
 
@@ -395,6 +398,16 @@ def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work:
         return traj
     counts["sfm_refine"] = {"images": len(names), "registered": int(refined.stats.get("registered", len(refined))),
                             **stats}
+    if stats["moved_rel_median"] > max_move_rel or stats["turned_deg_median"] > max_turn_deg:
+        # Not a refinement but another solution: SfM can fold an orbit into a self-consistent wrong one
+        # (views of alike sides registered to each other; each view's points still agree with its depth),
+        # while VO's tracks chain view to view. Measured: docs/ROUNDS.md, issue 12's fiftieth round.
+        reason = (f"SfM's poses lie {stats['moved_rel_median']:.2f} of the path's radius and "
+                  f"{stats['turned_deg_median']:.1f} deg from visual odometry's (median; a refinement stays within "
+                  f"{max_move_rel:g} and {max_turn_deg:g} deg)")
+        log.warning("pose refinement by SfM rejected: %s; keeping visual odometry's poses", reason)
+        counts["sfm_refine"]["rejected"] = reason
+        return traj
     log.info("poses: %d of %d frames bundle-adjusted by SfM (median change %.1f mm, %.3f deg)",
              stats["grafted_frames"], len(names), 1000 * stats["moved_m_median"], stats["turned_deg_median"])
     return out

@@ -7,6 +7,7 @@ Poses are world-from-left-camera (``X_world = R_wc @ X_cam + t_wc``), metres, Op
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -260,7 +261,8 @@ def graft_poses(base: Trajectory, refined: Trajectory) -> tuple[Trajectory, dict
     refined (e.g. bundle-adjusted poses of a subset of frames) is mapped onto base's world frame and
     scale by the similarity of their common camera centres; the frames only base has get the
     correction (refined-from-base) of the nearest refined frame by index, so the whole trajectory
-    stays smooth. Returns (trajectory, stats with the similarity's scale and the corrections' size).
+    stays smooth. Returns (trajectory, stats with the similarity's scale and the corrections' size: median
+    moved (m, and as a fraction of the rms distance of base's common centres from their mean) and turned (deg)).
     """
     ib, ir = _associate(base, refined)  # ValueError below 3 common frames
     s, R, t = align_umeyama(refined.centres_m[ir], base.centres_m[ib], with_scale=True)
@@ -271,8 +273,11 @@ def graft_poses(base: Trajectory, refined: Trajectory) -> tuple[Trajectory, dict
     T[ib] = new
     moved = np.linalg.norm(new[:, :3, 3] - base.T_wc[ib, :3, 3], axis=1)
     turned = _rot_angle_deg(np.einsum("nji,njk->nik", base.T_wc[ib, :3, :3], new[:, :3, :3]))
+    c = base.T_wc[ib, :3, 3]
+    radius = float(np.sqrt(((c - c.mean(axis=0)) ** 2).sum(axis=1).mean()))  # the path's rms radius (m)
     stats = {"grafted_frames": int(len(ib)), "similarity_scale": float(s),
-             "moved_m_median": float(np.median(moved)), "turned_deg_median": float(np.median(turned))}
+             "moved_m_median": float(np.median(moved)), "turned_deg_median": float(np.median(turned)),
+             "moved_rel_median": float(np.median(moved)) / radius if radius > 0 else math.inf}
     return Trajectory(base.indices.copy(), base.timestamps_s.copy(), T, dict(base.stats)), stats
 
 

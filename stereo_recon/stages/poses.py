@@ -47,7 +47,7 @@ def refine_poses(traj, setup: Setup, streamed: Streamed, config: ReconstructConf
         ctx.report("sfm", 0, None)
         with ctx.clock.stage("refine_poses"):
             traj = refine_with_sfm(traj, streamed.keyframes, streamed.partners, ctx.work, setup.K, setup.baseline_m,
-                                   setup.source.fps, ctx.counts)
+                                   setup.source.fps, ctx.counts, c.refine_max_move_rel, c.refine_max_turn_deg)
     if len(traj) < c.min_frames:
         raise StageError("poses", f"only {len(traj)} frames have a pose (tracking lost); at least {c.min_frames} "
                                   "are needed")

@@ -420,6 +420,22 @@ def test_a_scale_the_run_did_not_correct_fails_its_gate():
     assert names == ["frames_decoded", "trajectory_scale"]
 
 
+def test_a_rejected_or_failed_bundle_adjustment_is_a_warning_in_the_checks():
+    """SfM's refinement rejected (its poses another solution) or failed: a warning naming why, not a gate."""
+    from stereo_recon.quality import checks_from_reconstruction, pose_refinement_check
+
+    applied = {"grafted_frames": 37, "moved_rel_median": 0.01, "turned_deg_median": 0.4}
+    assert pose_refinement_check({"sfm_refine": applied})["status"] == "pass"
+    rejected = {**applied, "rejected": "SfM's poses lie 0.50 of the path's radius and 35.0 deg from VO's"}
+    c = pose_refinement_check({"sfm_refine": rejected})
+    assert c["status"] == "warn" and "0.50 of the path's radius" in c["detail"] and "odometry's poses kept" in c["detail"]
+    assert pose_refinement_check({"sfm_refine": "failed: too few images registered"})["status"] == "warn"
+    assert pose_refinement_check({"frames_read": 80}) is None   # not a far scene: no bundle adjustment
+    names = [ch["name"] for ch in checks_from_reconstruction({"source": {}, "counts": {"frames_read": 80,
+                                                                                     "sfm_refine": rejected}})]
+    assert names == ["frames_decoded", "pose_refinement"]
+
+
 def test_a_full_disk_outside_the_stages_is_one_line_too(tmp_path, capsys):
     # A command whose own code meets ENOSPC outside a stage's wrapper still ends in one line naming the folder
     # and exit 2, and leaves no output folder; any other OSError keeps its traceback (a bug to report).

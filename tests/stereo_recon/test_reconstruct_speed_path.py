@@ -148,6 +148,10 @@ def test_speed_path_config_is_validated():
         ReconstructConfig(fusion_depth_max_rel=0.5)
     with pytest.raises(ConfigError):
         ReconstructConfig(fusion_min_width_px=4)
+    with pytest.raises(ConfigError, match="refine_max"):
+        ReconstructConfig(refine_max_move_rel=0.0)
+    with pytest.raises(ConfigError, match="refine_max"):
+        ReconstructConfig(refine_max_turn_deg=-1.0)
 
 
 @pytest.mark.parametrize("kw", [dict(consistency_views=0), dict(consistency_views=2, consistency_min_views=3),

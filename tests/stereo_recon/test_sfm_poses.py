@@ -29,6 +29,16 @@ def _read_middlebury_par(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]
     return names, np.array(Ks), np.array(Ts)
 
 
+def _vo_scene():
+    """The synthetic orbit scene module shared with the VO tests (tests/stereo_recon/vo_scene.py)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("vo_scene", Path(__file__).with_name("vo_scene.py"))
+    vo_scene = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(vo_scene)
+    return vo_scene
+
+
 def test_loop_pairs_cover_sequence_and_loops():
     pairs = loop_pairs(40, overlap=3, stride=10)
     assert (0, 1) in pairs and (0, 3) in pairs and (0, 4) not in pairs
@@ -90,15 +100,11 @@ def test_sfm_config_rejects_unknown_matching():
 @pytest.mark.slow
 def test_sfm_metric_scale_from_depth_maps(tmp_path):
     """SfM on a rendered arc with exact depth maps: metric poses (scale error <= 0.5 %), small ATE."""
-    import importlib.util
-
     import cv2
 
     from stereo_recon.trajectory import absolute_trajectory_error, scale_error
 
-    spec = importlib.util.spec_from_file_location("vo_scene", Path(__file__).with_name("vo_scene.py"))
-    vo_scene = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(vo_scene)
+    vo_scene = _vo_scene()
     n = 14
     K, imgs, depths, T = vo_scene.render_orbit(n, size=(320, 240), supersample=2, arc_deg=70.0)
     (tmp_path / "img").mkdir()
@@ -114,3 +120,47 @@ def test_sfm_metric_scale_from_depth_maps(tmp_path):
     assert np.allclose(est.timestamps_s, est.indices / 10.0)
     assert abs(scale_error(est, gt)) <= 0.005
     assert absolute_trajectory_error(est, gt, with_scale=True)["rmse_rel_path"] <= 0.01
+
+
+@pytest.mark.parametrize("folded", [False, True])
+def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch, folded):
+    """SfM's poses replace VO's only as a refinement. VO: a 6.5 m orbit with a 1 deg, 20 cm wobble; SfM: the
+    true orbit in its own frame and scale (kept: the grafted views move to the truth), or one whose second
+    half is folded onto the first (views of a symmetric truck's two sides registered to each other, as on a
+    full-scale tanker of seed 2079: 0.5 of the radius and 35 deg from VO), which is rejected with VO's
+    poses kept and the reason recorded."""
+    from scipy.spatial.transform import Rotation
+
+    import stereo_recon.sfm as sfm
+
+    n = 24
+    truth = _vo_scene().orbit_poses(n, radius_m=6.5, height_m=4.7, target=(0.0, 0.0, 0.0), wobble_m=0.0)
+    vo = truth.copy()
+    for k in range(n):
+        a = np.radians(1.0) * np.sin(2 * np.pi * k / 8)
+        vo[k, :3, :3] = vo[k, :3, :3] @ Rotation.from_rotvec([0.0, a, 0.0]).as_matrix()
+        vo[k, :3, 3] += 11.5 * a * vo[k, :3, 0]
+    base = Trajectory(np.arange(n), np.arange(n) / 15.0, vo)
+    refined_T = truth.copy()
+    if folded:  # the second half mirrored through the x-z plane onto the first, turned to face the truck
+        F = np.diag([1.0, -1.0, 1.0])
+        for k in range(n // 2, n):
+            refined_T[k, :3, 3] = F @ truth[k, :3, 3]
+            refined_T[k, :3, :3] = F @ truth[k, :3, :3] @ F
+    R = Rotation.from_euler("zyx", [30, 5, -4], degrees=True).as_matrix()
+    refined = Trajectory(np.arange(n), np.arange(n) / 15.0, refined_T).transformed(0.4, R, np.array([2.0, 1.0, -1.0]))
+    monkeypatch.setattr(sfm, "sfm_poses", lambda *a, **k: refined)
+    (tmp_path / "images").mkdir()
+    for k in range(n):
+        (tmp_path / "images" / f"{k:06d}.png").write_bytes(b"")
+    counts: dict = {}
+    out = sfm.refine_with_sfm(base, list(range(n)), {}, tmp_path, np.eye(3), 0.12, 15.0, counts)
+    stats = counts["sfm_refine"]
+    err_vo = np.linalg.norm(vo[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
+    err_out = np.linalg.norm(out.T_wc[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
+    if folded:
+        assert stats["moved_rel_median"] > 0.2 and "rejected" in stats
+        assert np.array_equal(out.T_wc, vo)
+    else:
+        assert stats["moved_rel_median"] < 0.05 and stats["turned_deg_median"] < 1.5 and "rejected" not in stats
+        assert err_out < 0.2 * err_vo
