@@ -361,7 +361,7 @@ def sfm_poses(
 
 def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work: Path, K: np.ndarray,
                     baseline_m: float, fps: float | None, counts: dict, max_move_rel: float = 0.2,
-                    max_turn_deg: float = 10.0) -> Trajectory:
+                    max_turn_deg: float = 20.0) -> Trajectory:
     """VO's trajectory with the fused views' and partners' poses replaced by pycolmap SfM's (same world, scale).
 
     traj: VO's trajectory (rectified left camera, m); keyframes: the fused views' frame indices, images in
@@ -399,9 +399,9 @@ def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work:
     counts["sfm_refine"] = {"images": len(names), "registered": int(refined.stats.get("registered", len(refined))),
                             **stats}
     if stats["moved_rel_median"] > max_move_rel or stats["turned_deg_median"] > max_turn_deg:
-        # Not a refinement but another solution: SfM can fold an orbit into a self-consistent wrong one
-        # (views of alike sides registered to each other; each view's points still agree with its depth),
-        # while VO's tracks chain view to view. Measured: docs/ROUNDS.md, issue 12's fiftieth round.
+        # Not a refinement but another solution: SfM can converge to a self-consistent wrong orbit (each
+        # view's points still agree with its stereo depth), while VO's tracks chain view to view.
+        # Measured: docs/ROUNDS.md, issue 12's fiftieth round.
         reason = (f"SfM's poses lie {stats['moved_rel_median']:.2f} of the path's radius and "
                   f"{stats['turned_deg_median']:.1f} deg from visual odometry's (median; a refinement stays within "
                   f"{max_move_rel:g} and {max_turn_deg:g} deg)")

@@ -126,9 +126,8 @@ def test_sfm_metric_scale_from_depth_maps(tmp_path):
 def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch, folded):
     """SfM's poses replace VO's only as a refinement. VO: a 6.5 m orbit with a 1 deg, 20 cm wobble; SfM: the
     true orbit in its own frame and scale (kept: the grafted views move to the truth), or one whose second
-    half is folded onto the first (views of a symmetric truck's two sides registered to each other, as on a
-    full-scale tanker of seed 2079: 0.5 of the radius and 35 deg from VO), which is rejected with VO's
-    poses kept and the reason recorded."""
+    half is folded onto the first (another orbit, as SfM gave on a full-scale tanker of seed 2079: 0.5 of
+    the radius and 35 deg from VO), which is rejected with VO's poses kept and the reason recorded."""
     from scipy.spatial.transform import Rotation
 
     import stereo_recon.sfm as sfm
