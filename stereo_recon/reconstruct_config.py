@@ -105,8 +105,9 @@ class ReconstructConfig:
     # VO's than refine_max_move_rel of the path's rms radius or refine_max_turn_deg (medians over the
     # views), SfM has found another solution (another orbit, seen on a full-scale tanker: 0.50 and 35 deg)
     # and VO's poses are kept (logged, counts["sfm_refine"]["rejected"]). Where SfM was right on tuning seed
-    # 2079 (39 runs), VO lay up to 0.10 of the radius and 7.2 deg from it (a 17 m box flown 20 m out whose
-    # VO had drifted): a magnitude alone cannot say which of the two is wrong, so the bounds stay wide.
+    # 2079 (35 runs), VO lay up to 0.10 of the radius (a 17 m box flown 20 m out) and 8.0 deg (a 17 m
+    # semi-trailer 30 m out) from it: a magnitude alone cannot say which of the two is wrong, so the bounds
+    # stay wide.
     refine_max_move_rel: float = 0.2
     refine_max_turn_deg: float = 20.0
     # TSDF settings; voxel_m None = derived from the first keyframe's depth.
