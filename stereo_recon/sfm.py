@@ -360,16 +360,17 @@ def sfm_poses(
 
 
 def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work: Path, K: np.ndarray,
-                    baseline_m: float, fps: float | None, counts: dict, max_move_rel: float = 0.2,
-                    max_turn_deg: float = 20.0) -> Trajectory:
+                    baseline_m: float, fps: float | None, counts: dict, max_move_rel: float,
+                    max_turn_deg: float) -> Trajectory:
     """VO's trajectory with the fused views' and partners' poses replaced by pycolmap SfM's (same world, scale).
 
     traj: VO's trajectory (rectified left camera, m); keyframes: the fused views' frame indices, images in
     work/images/<index>.png and depth in work/depth; partners: view -> motion-stereo partner frame, images in
     work/partner/<view>.png; K (3,3) px and baseline_m (m): the rectified rig. max_move_rel / max_turn_deg:
     the largest median correction of VO's views that is still a refinement (a fraction of the path's rms
-    radius; degrees). Records the outcome in counts["sfm_refine"]; on failure, or when SfM's poses lie
-    further from VO's than that, logs it and returns traj unchanged.
+    radius; degrees: ``ReconstructConfig.refine_max_move_rel`` / ``refine_max_turn_deg``). Records the outcome
+    in counts["sfm_refine"]; on failure, or when SfM's poses lie further from VO's than that, logs it and
+    returns traj unchanged.
     """
     import os
 

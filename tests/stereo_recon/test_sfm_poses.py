@@ -131,6 +131,7 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
     from scipy.spatial.transform import Rotation
 
     import stereo_recon.sfm as sfm
+    from stereo_recon.reconstruct_config import ReconstructConfig
 
     n = 24
     truth = _vo_scene().orbit_poses(n, radius_m=6.5, height_m=4.7, target=(0.0, 0.0, 0.0), wobble_m=0.0)
@@ -153,7 +154,9 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
     for k in range(n):
         (tmp_path / "images" / f"{k:06d}.png").write_bytes(b"")
     counts: dict = {}
-    out = sfm.refine_with_sfm(base, list(range(n)), {}, tmp_path, np.eye(3), 0.12, 15.0, counts)
+    c = ReconstructConfig()
+    out = sfm.refine_with_sfm(base, list(range(n)), {}, tmp_path, np.eye(3), 0.12, 15.0, counts, c.refine_max_move_rel,
+                              c.refine_max_turn_deg)
     stats = counts["sfm_refine"]
     err_vo = np.linalg.norm(vo[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
     err_out = np.linalg.norm(out.T_wc[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
