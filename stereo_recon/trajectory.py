@@ -7,7 +7,6 @@ Poses are world-from-left-camera (``X_world = R_wc @ X_cam + t_wc``), metres, Op
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -275,9 +274,10 @@ def graft_poses(base: Trajectory, refined: Trajectory) -> tuple[Trajectory, dict
     turned = _rot_angle_deg(np.einsum("nji,njk->nik", base.T_wc[ib, :3, :3], new[:, :3, :3]))
     c = base.T_wc[ib, :3, 3]
     radius = float(np.sqrt(((c - c.mean(axis=0)) ** 2).sum(axis=1).mean()))  # the path's rms radius (m)
+    moved_m = float(np.median(moved))
     stats = {"grafted_frames": int(len(ib)), "similarity_scale": float(s),
-             "moved_m_median": float(np.median(moved)), "turned_deg_median": float(np.median(turned)),
-             "moved_rel_median": float(np.median(moved)) / radius if radius > 0 else math.inf}
+             "moved_m_median": moved_m, "turned_deg_median": float(np.median(turned)),
+             "moved_rel_median": moved_m / radius if radius > 0 else float("inf")}
     return Trajectory(base.indices.copy(), base.timestamps_s.copy(), T, dict(base.stats)), stats
 
 
