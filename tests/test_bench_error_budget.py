@@ -58,3 +58,39 @@ def test_budget_recovers_scale_walls_and_measurement_share(tmp_path, rng, benchm
     assert abs(r["width_err_pct"] - 100 * (measured_w / W - 1)) < 1e-9
     # The measurement's share is what scale and walls leave: -2 mm of 0.4 m (x k) = -0.50 %.
     assert abs(r["width_measurement_pct"] - (-0.5)) < 0.06
+
+
+def test_budget_reads_a_tankers_flanks_against_its_elliptic_shell_and_in_voxels(tmp_path, rng, benchmark_module):
+    from stereo_recon.synthetic.scene import TruckSpec, truck_layout
+
+    L, W, H = 2.0, 0.40, 0.50
+    lay = truck_layout(TruckSpec(length_m=L, width_m=W, height_m=H, body="tanker", cab_length_frac=0.2, cab_height_frac=0.8))
+    zc, b, a = 0.5 * (lay.z_floor_m + H), 0.5 * (H - lay.z_floor_m), W / 2
+    # The shell's upper flanks, each moved horizontally by a known offset (left -4 mm, right -2 mm), and its crest.
+    n = 30_000
+    x = rng.uniform(-0.45 * L, 0.3 * L, n)
+    th = rng.uniform(-0.5 * np.pi, 0.5 * np.pi, n)  # from the underside up over the widest line to the crest
+    side = np.where(rng.random(n) < 0.5, 1.0, -1.0)
+    offset = np.where(side > 0, -0.004, -0.002)
+    y = side * (a * np.cos(th) + offset)
+    z = zc + b * np.sin(th)
+    pts = np.c_[x, y, z] + rng.normal(0, 0.0003, (n, 3))
+    idx = np.arange(8)
+    T = np.repeat(np.eye(4)[None], 8, 0)
+    T[:, :3, 3] = np.c_[3 * np.cos(idx), 3 * np.sin(idx), np.full(8, 1.5)]
+    scene, run = tmp_path / "draws" / "d", tmp_path / "runs" / "d"
+    scene.mkdir(parents=True)
+    run.mkdir(parents=True)
+    write_tum(scene / "poses_gt.txt", Trajectory(idx, idx / 15.0, T))
+    write_tum(run / "poses.txt", Trajectory(idx, idx / 15.0, T))
+    write_cloud(run / "cloud.ply", pts)
+    (scene / "truth.json").write_text(json.dumps({
+        "fps": 15.0, "length_m": L, "width_m": W, "height_m": H,
+        "truck": {"body": "tanker", "T_world_truck": np.eye(4).tolist(), "cab_length_frac": 0.2, "cab_height_frac": 0.8}}))
+    (run / "measurement.json").write_text(json.dumps({"width_m": W - 0.006, "height_m": H}))
+    (run / "run.json").write_text(json.dumps({"voxel_m": 0.002}))
+
+    r = benchmark_module("bench_error_budget").budget(run, scene)
+    assert abs(r["wall_left_mm"] + 4.0) < 0.3 and abs(r["wall_right_mm"] + 2.0) < 0.3, r
+    assert abs(r["walls_voxels"] + 1.5) < 0.15, r   # (-4 - 2) / 2 mm = -3 mm = -1.5 voxels of 2 mm
+    assert abs(r["width_measurement_pct"]) < 0.2, r  # the measured width is the flanks' own
