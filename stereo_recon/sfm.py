@@ -395,7 +395,10 @@ def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work:
         out, stats = graft_poses(traj, refined)
     except (StageError, ValueError) as err:
         log.warning("pose refinement by SfM failed (%s); keeping visual odometry's poses", err)
-        counts["sfm_refine"] = f"failed: {err}"
+        # The record (run.json, and measurement.json's pose_refinement check) names no work folder: a run's is a
+        # temporary one, gone once its outputs are committed, whose name would make two runs' records differ.
+        reason = str(err).replace(f" in {folder}", "").replace(f" on {folder}", "").replace(str(work), "the work folder")
+        counts["sfm_refine"] = f"failed: {reason}"
         return traj
     counts["sfm_refine"] = {"images": len(names), "registered": int(refined.stats.get("registered", len(refined))),
                             **stats}

@@ -166,3 +166,35 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
     else:
         assert stats["moved_rel_median"] < 0.05 and stats["turned_deg_median"] < 1.5 and "rejected" not in stats
         assert err_out < 0.2 * err_vo
+
+
+@pytest.mark.parametrize("message", ["SfM registered only 7 of 34 images in {dir}", "pycolmap SfM failed on {dir}: no pairs"])
+def test_a_failed_refinement_is_recorded_without_the_runs_work_folder(tmp_path, monkeypatch, message):
+    """A bundle adjustment that fails keeps VO's poses, and its record names no work folder: the run's is a
+    temporary one, gone after the run, whose name would make two runs' measurement.json differ (seed 2081's
+    draw 38 recorded `..draw_038.tmp-22340-.../work/sfm_images`)."""
+    import stereo_recon.sfm as sfm
+    from stereo_recon.quality import pose_refinement_check
+    from stereo_recon.reconstruct_config import ReconstructConfig
+
+    n = 6
+    base = Trajectory(np.arange(n), np.arange(n) / 15.0, np.repeat(np.eye(4)[None], n, 0))
+    work = tmp_path / "run.tmp-123-abc" / "work"
+    (work / "images").mkdir(parents=True)
+    for k in range(n):
+        (work / "images" / f"{k:06d}.png").write_bytes(b"")
+
+    def fail(image_dir, *a, **k):
+        raise StageError("poses", message.format(dir=image_dir))
+
+    monkeypatch.setattr(sfm, "sfm_poses", fail)
+    counts: dict = {}
+    c = ReconstructConfig()
+    out = sfm.refine_with_sfm(base, list(range(n)), {}, work, np.eye(3), 0.12, 15.0, counts, c.refine_max_move_rel,
+                              c.refine_max_turn_deg)
+    assert np.array_equal(out.T_wc, base.T_wc)
+    record = counts["sfm_refine"]
+    assert record.startswith("failed: poses: ") and "tmp-123" not in record and str(tmp_path) not in record, record
+    assert record in ("failed: poses: SfM registered only 7 of 34 images", "failed: poses: pycolmap SfM failed: no pairs")
+    check = pose_refinement_check(counts)
+    assert check["status"] == "warn" and "tmp-123" not in check["detail"], check
