@@ -257,18 +257,18 @@ def _match(pycolmap, db: Path, names: list[str], work_dir: Path, matching, verif
     return mode, len(pairs)
 
 
-def _largest_model(models, names: list[str], image_dir: Path, config: SfMConfig):
+def _largest_model(models, names: list[str], config: SfMConfig):
     """The reconstruction with the most registered images; StageError when too few are registered."""
     if not models:
-        raise StageError("poses", f"SfM found no initial image pair in {image_dir} ({len(names)} images)")
+        raise StageError("poses", f"SfM found no initial image pair among {len(names)} images")
     rec = max(models.values(), key=lambda r: r.num_reg_images())
     n_reg = rec.num_reg_images()
     if n_reg < max(3, int(np.ceil(config.min_registered_fraction * len(names)))):
-        raise StageError("poses", f"SfM registered only {n_reg} of {len(names)} images in {image_dir}")
+        raise StageError("poses", f"SfM registered only {n_reg} of {len(names)} images")
     return rec
 
 
-def _metric_trajectory(rec, names: list[str], image_dir: Path, matching: dict, baseline_m: float | None, depth_dir,
+def _metric_trajectory(rec, names: list[str], matching: dict, baseline_m: float | None, depth_dir,
                        config: SfMConfig, fps: float | None) -> Trajectory:
     """World-from-left-camera poses (m) of the registered images, world at the first one, scaled by stereo depth.
 
@@ -277,7 +277,7 @@ def _metric_trajectory(rec, names: list[str], image_dir: Path, matching: dict, b
     reg = sorted((names.index(img.name), iid) for iid, img in rec.images.items() if img.has_pose)
     order = [iid for _, iid in reg]
     if not order:
-        raise StageError("poses", f"SfM registered no image in {image_dir}")
+        raise StageError("poses", "SfM registered none of the images")
     T = np.stack([_pose_T_wc(rec.images[iid]) for iid in order])
     stats = {
         "backend": "sfm",
@@ -354,9 +354,9 @@ def sfm_poses(
     except StageError:
         raise
     except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on bad input
-        raise StageError("poses", f"pycolmap SfM failed on {image_dir}: {err}") from err
-    rec = _largest_model(models, names, image_dir, config)
-    return _metric_trajectory(rec, names, image_dir, {"mode": mode, "pairs": n_pairs}, baseline_m, depth_dir, config, fps)
+        raise StageError("poses", f"pycolmap SfM failed: {err}") from err
+    rec = _largest_model(models, names, config)
+    return _metric_trajectory(rec, names, {"mode": mode, "pairs": n_pairs}, baseline_m, depth_dir, config, fps)
 
 
 def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work: Path, K: np.ndarray,
@@ -395,10 +395,10 @@ def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work:
         out, stats = graft_poses(traj, refined)
     except (StageError, ValueError) as err:
         log.warning("pose refinement by SfM failed (%s); keeping visual odometry's poses", err)
-        # The record (run.json, and measurement.json's pose_refinement check) names no work folder: a run's is a
-        # temporary one, gone once its outputs are committed, whose name would make two runs' records differ.
-        reason = str(err).replace(f" in {folder}", "").replace(f" on {folder}", "").replace(str(work), "the work folder")
-        counts["sfm_refine"] = f"failed: {reason}"
+        # The record (run.json, and measurement.json's pose_refinement check) names no work folder (pycolmap's own
+        # messages may): a run's is a temporary one, gone once its outputs are committed, whose name would make two
+        # runs' records differ.
+        counts["sfm_refine"] = "failed: " + str(err).replace(str(work), "the work folder")
         return traj
     counts["sfm_refine"] = {"images": len(names), "registered": int(refined.stats.get("registered", len(refined))),
                             **stats}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -168,14 +169,19 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
         assert err_out < 0.2 * err_vo
 
 
-@pytest.mark.parametrize("message", ["SfM registered only 7 of 34 images in {dir}", "pycolmap SfM failed on {dir}: no pairs"])
-def test_a_failed_refinement_is_recorded_without_the_runs_work_folder(tmp_path, monkeypatch, message):
+def test_a_failed_refinement_is_recorded_without_the_runs_work_folder(tmp_path, monkeypatch):
     """A bundle adjustment that fails keeps VO's poses, and its record names no work folder: the run's is a
     temporary one, gone after the run, whose name would make two runs' measurement.json differ (seed 2081's
-    draw 38 recorded `..draw_038.tmp-22340-.../work/sfm_images`)."""
+    draw 38 recorded `..draw_038.tmp-22340-.../work/sfm_images`). SfM's own failures count images, not the folder;
+    a pycolmap message naming a file in the work folder is recorded without it."""
     import stereo_recon.sfm as sfm
     from stereo_recon.quality import pose_refinement_check
     from stereo_recon.reconstruct_config import ReconstructConfig
+
+    names = [f"{k:06d}.png" for k in range(34)]
+    with pytest.raises(StageError) as no_pair:
+        sfm._largest_model({}, names, SfMConfig())
+    assert str(no_pair.value) == "poses: SfM found no initial image pair among 34 images"
 
     n = 6
     base = Trajectory(np.arange(n), np.arange(n) / 15.0, np.repeat(np.eye(4)[None], n, 0))
@@ -183,18 +189,21 @@ def test_a_failed_refinement_is_recorded_without_the_runs_work_folder(tmp_path, 
     (work / "images").mkdir(parents=True)
     for k in range(n):
         (work / "images" / f"{k:06d}.png").write_bytes(b"")
+    def no_pair(image_dir, *a, **k):
+        return sfm._largest_model({}, names, SfMConfig())
 
-    def fail(image_dir, *a, **k):
-        raise StageError("poses", message.format(dir=image_dir))
+    def unreadable(image_dir, *a, **k):
+        raise StageError("poses", f"pycolmap SfM failed: cannot read {image_dir / '000003.png'}")
 
-    monkeypatch.setattr(sfm, "sfm_poses", fail)
-    counts: dict = {}
     c = ReconstructConfig()
-    out = sfm.refine_with_sfm(base, list(range(n)), {}, work, np.eye(3), 0.12, 15.0, counts, c.refine_max_move_rel,
-                              c.refine_max_turn_deg)
-    assert np.array_equal(out.T_wc, base.T_wc)
-    record = counts["sfm_refine"]
-    assert record.startswith("failed: poses: ") and "tmp-123" not in record and str(tmp_path) not in record, record
-    assert record in ("failed: poses: SfM registered only 7 of 34 images", "failed: poses: pycolmap SfM failed: no pairs")
-    check = pose_refinement_check(counts)
-    assert check["status"] == "warn" and "tmp-123" not in check["detail"], check
+    for fake, want in ((no_pair, "failed: poses: SfM found no initial image pair among 34 images"),
+                       (unreadable, "failed: poses: pycolmap SfM failed: cannot read the work folder/sfm_images/000003.png")):
+        monkeypatch.setattr(sfm, "sfm_poses", fake)
+        counts: dict = {}
+        out = sfm.refine_with_sfm(base, list(range(n)), {}, work, np.eye(3), 0.12, 15.0, counts, c.refine_max_move_rel,
+                                  c.refine_max_turn_deg)
+        assert np.array_equal(out.T_wc, base.T_wc)
+        assert counts["sfm_refine"] == want and "tmp-123" not in counts["sfm_refine"], counts
+        check = pose_refinement_check(counts)
+        assert check["status"] == "warn" and "tmp-123" not in check["detail"], check
+        shutil.rmtree(work / "sfm_images")  # the next attempt makes it again
