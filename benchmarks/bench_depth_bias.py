@@ -25,6 +25,12 @@ depth fused through the same TSDF (full or half resolution) places that edge wit
 Per class: median relative depth error over the views (each view's median), and its MAD (%).
 ``--by-hole-distance`` also splits the wide pairs' ``sides`` by each pixel's distance to the nearest
 invalid pixel of its depth map (issue 12, seventh round: the far bias sits next to the holes).
+
+``--refuse`` fuses the run's views again through the same ``TSDFFusion`` settings four ways, {the run's depth,
+the rendered depth resampled into the same frames and pixels} x {the run's poses, the true ones}, and prints
+each cloud's side walls (a tanker's flanks about its widest line) and roof against the truth, in mm and in
+voxels (``bench_error_budget.face_offsets_mm``; the run's poses' cloud moved onto the truth by the similarity of
+its cameras). Which of depth, poses and fusion puts the walls where they are: issue 12, fifty-second round.
 """
 
 from __future__ import annotations
@@ -159,11 +165,102 @@ def bias(draw: Path, run: Path, by_hole_distance: bool = False) -> dict:
     return res
 
 
+def resample_rendered(z_shape: tuple[int, int], K_view: np.ndarray, R_view: np.ndarray, R1: np.ndarray, rig,
+                      rendered: np.ndarray) -> np.ndarray:
+    """The rendered depth seen from a fused view's frame: its z-depth (m) at each of the view's pixels.
+
+    z_shape: (H, W) of the view's depth map; K_view (3, 3) px its intrinsics; R_view (3, 3) the rotation from the
+    rectified left camera to the view's frame (a wide pair's ``R_rect``; identity for the rig's own depth); R1 the
+    rig's raw-left-to-rectified rotation; rig: K1, D1 of the raw left eye; rendered: (H', W') z-depth of the raw
+    left eye, m. Pixels whose ray leaves the rendered image are NaN (nearest-pixel lookup: no mixing across edges).
+    """
+    import cv2
+
+    h, w = z_shape
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    rays = np.stack([u, v, np.ones_like(u)], -1).reshape(-1, 3) @ np.linalg.inv(K_view).T
+    d_raw = rays @ R_view @ R1                                   # = R1^T R_view^T ray: the raw left camera's frame
+    ahead = d_raw[:, 2] > 1e-9
+    uv = np.full((len(d_raw), 2), -1.0, np.float32)
+    if ahead.any():
+        p, _ = cv2.projectPoints(d_raw[ahead].reshape(-1, 1, 3), np.zeros(3), np.zeros(3), rig.K1, rig.D1)
+        uv[ahead] = p.reshape(-1, 2)
+    z_raw = cv2.remap(np.asarray(rendered, np.float32), uv[:, 0].reshape(h, w), uv[:, 1].reshape(h, w),
+                      cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan).reshape(-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = z_raw * (rays[:, 2] / d_raw[:, 2])                     # along one ray, z scales with the ray's z
+    z[~ahead | ~np.isfinite(z)] = np.nan
+    return z.reshape(h, w)
+
+
+def refused_faces(draw: Path, run: Path) -> dict:
+    """{variant: bench_error_budget.face_offsets_mm of the run's views fused again} (see ``--refuse``), plus voxel_m."""
+    import dataclasses
+    import importlib.util
+
+    import cv2
+
+    from calib.io import load_rig
+    from stereo_recon.fusion import FusionConfig, TSDFFusion
+    from stereo_recon.stages.fuse import subsample_for_fusion
+    from stereo_recon.stages.state import rot4
+    from stereo_recon.trajectory import align_trajectories, read_tum
+
+    spec = importlib.util.spec_from_file_location("bench_error_budget", Path(__file__).with_name("bench_error_budget.py"))
+    budget = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(budget)
+    truth = json.loads((draw / "truth.json").read_text())
+    meta = json.loads((run / "run.json").read_text())
+    rig = load_rig(glob.glob(str(draw / "SN*.conf"))[0], image_size=tuple(meta["rig"]["image_size"]))
+    R1 = rig.rectification(alpha=0.0).R1
+    K_rect = np.asarray(meta["rig"]["rectified"]["K_rect"], float)
+    fields = {f.name for f in dataclasses.fields(FusionConfig)}
+    fcfg = FusionConfig(**{k: v for k, v in meta["parameters"]["fusion"].items() if k in fields})
+    fps = float(truth.get("fps", 15.0))
+    est, gt = read_tum(run / "poses.txt", fps=fps), read_tum(draw / "poses_gt.txt", fps=fps)
+    pose_sets = {"run": {int(i): T for i, T in zip(est.indices, est.T_wc)},
+                 "true": {int(i): T @ rot4(R1.T) for i, T in zip(gt.indices, gt.T_wc)}}  # rectified left camera
+    scale = float(meta["counts"].get("motion_stereo_depth_scale", 1.0))
+    sub = int(meta["counts"].get("fusion_subsample", 1))
+    depth_of = _rendered_depth(draw, truth)
+    T_wt = np.asarray(truth["truck"]["T_world_truck"], float)
+    body = truth["truck"].get("body", "box")
+    tank = budget._tank_axes(truth) if body == "tanker" else None
+    out = {"voxel_m": float(fcfg.voxel_m)}
+    for depth_kind in ("run", "rendered"):
+        for pose_kind in ("run", "true"):
+            fusion = TSDFFusion(fcfg)
+            views = [i for i in meta["fused_views"] if i in pose_sets[pose_kind]]
+            for idx in views:
+                wide = run / "work" / "wide" / f"{idx:06d}.npz"
+                if wide.is_file():
+                    v = np.load(wide)
+                    color, depth, K_view, R_view = v["color"], v["depth"] * np.float32(scale), v["K"], v["R_rect"]
+                else:
+                    color = cv2.imread(str(run / "work" / "images" / f"{idx:06d}.png"), cv2.IMREAD_COLOR)
+                    color, depth, K_view = subsample_for_fusion(color, np.load(run / "work" / "depth" / f"{idx:06d}.npy"),
+                                                                K_rect, sub)
+                    R_view = np.eye(3)
+                if depth_kind == "rendered":   # the same pixels, their true depth
+                    exact = resample_rendered(depth.shape, K_view, R_view, R1, rig, depth_of(idx))
+                    depth = np.where(np.isfinite(depth) & (depth > 0), exact, np.nan)
+                fusion.integrate(color, np.asarray(depth, np.float32), K_view, pose_sets[pose_kind][idx] @ rot4(R_view.T))
+            pts = fusion.extract_cloud(min_weight=min(fcfg.min_weight, max(1.0, len(views) / 3.0)))[0]
+            s, R, t = align_trajectories(est, gt) if pose_kind == "run" else (1.0, np.eye(3), np.zeros(3))
+            truck = (s * (pts @ R.T) + t - T_wt[:3, 3]) @ T_wt[:3, :3]
+            out[f"{depth_kind} depth, {pose_kind} poses"] = budget.face_offsets_mm(
+                truck, truth["length_m"], truth["width_m"], truth["height_m"], walls=body != "flatbed", tank=tank)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("pairs", nargs="+", help="DRAW:RUN (synth folder rendered with --depth : reconstruct --keep-work folder)")
     ap.add_argument("--by-hole-distance", action="store_true",
                     help="also split the wide pairs' sides by distance to the nearest invalid depth pixel")
+    ap.add_argument("--refuse", action="store_true",
+                    help="fuse each run's views again with its own or the rendered depth, its own or the true poses, "
+                         "and print the walls' and roof's offsets from the truth")
     args = ap.parse_args(argv)
     pairs = [pair.partition(":")[::2] for pair in args.pairs]
     for pair, (d, r) in zip(args.pairs, pairs):
@@ -172,6 +269,16 @@ def main(argv=None) -> int:
         if not (t.is_file() and rendered and (Path(r) / "work" / "depth").is_dir()):
             ap.error(f"{pair}: expected DRAW:RUN, a synth folder rendered with --depth (or a random draw) and a "
                      "reconstruct --keep-work folder")
+    if args.refuse:
+        print(f"{'draw':28s} {'fused again with':28s} {'wall L mm':>9s} {'wall R mm':>9s} {'voxels':>7s} {'roof mm':>8s}")
+        for d, r in pairs:
+            res = refused_faces(Path(d), Path(r))
+            vox = res.pop("voxel_m")
+            for variant, f in res.items():
+                mean_vox = 0.5 * (f["wall_left_mm"] + f["wall_right_mm"]) / 1000 / vox
+                print(f"{Path(d).name[-28:]:28s} {variant:28s} {f['wall_left_mm']:+9.1f} {f['wall_right_mm']:+9.1f} "
+                      f"{mean_vox:+7.2f} {f['roof_mm']:+8.1f}")
+        return 0
     per_draw = {"rig": {c: [] for c in CLASSES}, "wide": {c: [] for c in CLASSES}}
     print(f"{'draw':28s} {'depth':5s} " + " ".join(f"{c + ' med/MAD %':>22s}" for c in CLASSES))
     for d, r in pairs:

@@ -114,3 +114,33 @@ def test_a_random_draw_without_depth_maps_is_rendered_again(tmp_path, benchmark_
         assert np.array_equal(np.isfinite(again), np.isfinite(saved))
         ok = np.isfinite(saved)
         assert np.max(np.abs(again[ok] - saved[ok])) < 1e-6
+
+
+def test_rendered_depth_resampled_into_a_rotated_view_frame(benchmark_module):
+    """A tilted plane's rendered depth in the raw left eye, looked up from a view frame turned 3 deg from the
+    rectified camera (itself 1 deg from the raw one): each pixel's z is the plane's along that pixel's own ray
+    (within the nearest-pixel lookup), and rays that leave the rendered image are NaN."""
+    from scipy.spatial.transform import Rotation
+
+    mod = benchmark_module("bench_depth_bias")
+    w, h, f = 640, 480, 500.0
+    K1 = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
+    rig = SimpleNamespace(K1=K1, D1=np.zeros(5))
+    R1 = Rotation.from_euler("y", 1.0, degrees=True).as_matrix()         # raw left -> rectified left
+    R_view = Rotation.from_euler("xy", [2.0, -2.2], degrees=True).as_matrix()  # rectified left -> view
+    n_raw, d = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0]), 6.0  # plane n . X = d (raw frame)
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    rays_raw = np.stack([(u - w / 2) / f, (v - h / 2) / f, np.ones_like(u)], -1)
+    rendered = d / (rays_raw @ n_raw)                                    # z-depth: the ray has z = 1
+    K_view = np.array([[250.0, 0, 160], [0, 250.0, 120], [0, 0, 1.0]])  # a half-size view
+    z = mod.resample_rendered((240, 320), K_view, R_view, R1, rig, rendered)
+    uv, vv = np.meshgrid(np.arange(320, dtype=float), np.arange(240, dtype=float))
+    rays_view = np.stack([(uv - 160) / 250.0, (vv - 120) / 250.0, np.ones_like(uv)], -1)
+    n_view = R_view @ R1 @ n_raw
+    expected = d / (rays_view @ n_view)
+    ok = np.isfinite(z)
+    assert ok.mean() > 0.9
+    assert np.nanmax(np.abs(z / expected - 1.0)) < 2e-3            # a pixel's step on a plane ~6 m out
+    big = mod.resample_rendered((240, 320), np.array([[60.0, 0, 160], [0, 60.0, 120], [0, 0, 1]]), R_view, R1, rig,
+                                rendered)                          # a wide view sees past the rendered image
+    assert np.isnan(big[0, 0]) and np.isfinite(big[120, 160])
