@@ -210,8 +210,10 @@ def pose_refinement_check(counts: dict) -> dict | None:
         return check("pose_refinement", "warn", f"bundle adjustment rejected: {refine['rejected']}; visual odometry's "
                                                 "poses kept")
     if isinstance(refine, dict):
+        # Guided matching runs only after a first pass registered too few: worth saying (SfMConfig.guided_retry).
+        how = "matched again guided by epipolar geometry, " if refine.get("guided_matching") else ""
         return check("pose_refinement", "pass", f"{refine.get('grafted_frames', 0)} views bundle-adjusted by SfM "
-                                                f"(median change {refine.get('turned_deg_median', 0.0):.2f} deg)")
+                                                f"({how}median change {refine.get('turned_deg_median', 0.0):.2f} deg)")
     return check("pose_refinement", "warn", f"bundle adjustment {refine}; visual odometry's poses kept")
 
 

@@ -438,7 +438,7 @@ def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work:
         counts["sfm_refine"] = "failed: " + str(err).replace(str(work), "the work folder")
         return traj
     counts["sfm_refine"] = {"images": len(names), "registered": int(refined.stats.get("registered", len(refined))),
-                            **stats}
+                            "guided_matching": bool(refined.stats.get("guided_matching", False)), **stats}
     if stats["moved_rel_median"] > max_move_rel or stats["turned_deg_median"] > max_turn_deg:
         # Not a refinement but another solution: SfM can converge to a self-consistent wrong orbit (each
         # view's points still agree with its stereo depth), while VO's tracks chain view to view.

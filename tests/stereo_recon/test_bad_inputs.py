@@ -426,6 +426,9 @@ def test_a_rejected_or_failed_bundle_adjustment_is_a_warning_in_the_checks():
 
     applied = {"grafted_frames": 37, "moved_rel_median": 0.01, "turned_deg_median": 0.4}
     assert pose_refinement_check({"sfm_refine": applied})["status"] == "pass"
+    assert "guided" not in pose_refinement_check({"sfm_refine": applied})["detail"]
+    guided = pose_refinement_check({"sfm_refine": {**applied, "guided_matching": True}})
+    assert guided["status"] == "pass" and "matched again guided by epipolar geometry" in guided["detail"], guided
     rejected = {**applied, "rejected": "SfM's poses lie 0.50 of the path's radius and 35.0 deg from VO's"}
     c = pose_refinement_check({"sfm_refine": rejected})
     assert c["status"] == "warn" and "0.50 of the path's radius" in c["detail"] and "odometry's poses kept" in c["detail"]
