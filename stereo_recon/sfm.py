@@ -357,10 +357,10 @@ def sfm_poses(
     if K.shape != (3, 3):
         raise InputError(f"K_rect: expected a 3x3 matrix, got shape {K.shape}")
     work_dir = Path(work_dir)
-    reader, extraction, matching, verification = _feature_options(pycolmap, K, image_dir / names[0], config)
+    options = _feature_options(pycolmap, K, image_dir / names[0], config)
+    matching = options[2]
     try:
-        rec, mode, n_pairs = _reconstruct(pycolmap, image_dir, names, work_dir, (reader, extraction, matching,
-                                                                                  verification), config)
+        rec, mode, n_pairs = _reconstruct(pycolmap, image_dir, names, work_dir, options, config)
     except TooFewRegistered as err:
         if matching.guided_matching or not config.guided_retry:
             raise
@@ -368,8 +368,7 @@ def sfm_poses(
         log.info("SfM: %s without guided matching; matching again guided by each pair's epipolar geometry",
                  err.reason)
         matching.guided_matching = True
-        rec, mode, n_pairs = _reconstruct(pycolmap, image_dir, names, work_dir, (reader, extraction, matching,
-                                                                                  verification), config)
+        rec, mode, n_pairs = _reconstruct(pycolmap, image_dir, names, work_dir, options, config)
     traj = _metric_trajectory(rec, names, {"mode": mode, "pairs": n_pairs}, baseline_m, depth_dir, config, fps)
     traj.stats["guided_matching"] = bool(matching.guided_matching)
     return traj
