@@ -226,25 +226,31 @@ def refused_faces(draw: Path, run: Path) -> dict:
     T_wt = np.asarray(truth["truck"]["T_world_truck"], float)
     body = truth["truck"].get("body", "box")
     tank = budget._tank_axes(truth) if body == "tanker" else None
+    # Each fused view as the run fused it, and its rendered depth at the same pixels: read and rendered once,
+    # fused four times.
+    inputs = {}
+    for idx in meta["fused_views"]:
+        wide = run / "work" / "wide" / f"{idx:06d}.npz"
+        if wide.is_file():
+            v = np.load(wide)
+            color, depth, K_view, R_view = v["color"], v["depth"] * np.float32(scale), v["K"], v["R_rect"]
+        else:
+            color = cv2.imread(str(run / "work" / "images" / f"{idx:06d}.png"), cv2.IMREAD_COLOR)
+            color, depth, K_view = subsample_for_fusion(color, np.load(run / "work" / "depth" / f"{idx:06d}.npy"),
+                                                        K_rect, sub)
+            R_view = np.eye(3)
+        exact = resample_rendered(depth.shape, K_view, R_view, R1, rig, depth_of(idx))
+        rendered = np.where(np.isfinite(depth) & (depth > 0), exact, np.nan)
+        inputs[idx] = (color, {"run": np.asarray(depth, np.float32), "rendered": rendered.astype(np.float32)},
+                       K_view, R_view)
     out = {"voxel_m": float(fcfg.voxel_m)}
     for depth_kind in ("run", "rendered"):
         for pose_kind in ("run", "true"):
             fusion = TSDFFusion(fcfg)
             views = [i for i in meta["fused_views"] if i in pose_sets[pose_kind]]
             for idx in views:
-                wide = run / "work" / "wide" / f"{idx:06d}.npz"
-                if wide.is_file():
-                    v = np.load(wide)
-                    color, depth, K_view, R_view = v["color"], v["depth"] * np.float32(scale), v["K"], v["R_rect"]
-                else:
-                    color = cv2.imread(str(run / "work" / "images" / f"{idx:06d}.png"), cv2.IMREAD_COLOR)
-                    color, depth, K_view = subsample_for_fusion(color, np.load(run / "work" / "depth" / f"{idx:06d}.npy"),
-                                                                K_rect, sub)
-                    R_view = np.eye(3)
-                if depth_kind == "rendered":   # the same pixels, their true depth
-                    exact = resample_rendered(depth.shape, K_view, R_view, R1, rig, depth_of(idx))
-                    depth = np.where(np.isfinite(depth) & (depth > 0), exact, np.nan)
-                fusion.integrate(color, np.asarray(depth, np.float32), K_view, pose_sets[pose_kind][idx] @ rot4(R_view.T))
+                color, depths, K_view, R_view = inputs[idx]
+                fusion.integrate(color, depths[depth_kind], K_view, pose_sets[pose_kind][idx] @ rot4(R_view.T))
             pts = fusion.extract_cloud(min_weight=min(fcfg.min_weight, max(1.0, len(views) / 3.0)))[0]
             s, R, t = align_trajectories(est, gt) if pose_kind == "run" else (1.0, np.eye(3), np.zeros(3))
             truck = (s * (pts @ R.T) + t - T_wt[:3, 3]) @ T_wt[:3, :3]
