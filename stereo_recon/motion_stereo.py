@@ -68,9 +68,9 @@ class MotionStereoConfig:
     # -0.67 / -0.82 % at 1.25, -0.58 / -0.68 % at 1.0 (fusion 4 -> 15 s). On model trucks (rig depth)
     # 1.0 lost flatbed decks' edges (truck 12 W -2.24 -> -4.56 %), so FusionConfig keeps 2.
     voxel_footprint_px: float | None = 1.0
-    # Rescale odometry's trajectory by the median ratio of the rig's depth to the wide pairs' depth
-    # (``reconstruct``): the wide pairs' baselines are odometry's steps, so that ratio is odometry's
-    # scale error as the rig's dense depth sees it. Skipped when it exceeds max_rescale (the run's
+    # Rescale the trajectory (odometry's, at the bundle adjustment's scale when SfM refined it) by the median
+    # ratio of the rig's depth to the wide pairs' depth (``reconstruct``): the wide pairs' baselines are the
+    # path's steps, so that ratio is the path's scale error as the rig's dense depth sees it. Skipped when it exceeds max_rescale (the run's
     # ``trajectory_scale`` gate then refuses it). 0.15 (was 0.05): on tuning seeds 2045-2046 the ratio
     # applied left the path within 0.6 % of the true scale on 70 of the 71 runs it was applied to (1.5 % on the
     # other); the one beyond 5 % (+6.48 %, true +6.20 %) read L -6.65 / H -6.30 % unscaled and -0.12 /

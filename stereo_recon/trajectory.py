@@ -254,14 +254,17 @@ def align_trajectories(est: Trajectory, gt: Trajectory, with_scale: bool = True)
     return align_umeyama(est.centres_m[ie], gt.centres_m[ig], with_scale=with_scale)
 
 
-def graft_poses(base: Trajectory, refined: Trajectory) -> tuple[Trajectory, dict]:
+def graft_poses(base: Trajectory, refined: Trajectory, keep_refined_scale: bool = False) -> tuple[Trajectory, dict]:
     """base's trajectory with the poses of the frames ``refined`` has replaced by refined's, in base's world.
 
     refined (e.g. bundle-adjusted poses of a subset of frames) is mapped onto base's world frame and
     scale by the similarity of their common camera centres; the frames only base has get the
     correction (refined-from-base) of the nearest refined frame by index, so the whole trajectory
-    stays smooth. Returns (trajectory, stats with the similarity's scale and the corrections' size: median
-    moved (m, and as a fraction of the rms distance of base's common centres from their mean) and turned (deg)).
+    stays smooth. keep_refined_scale: then scale the whole result by 1 / the similarity's scale about base's
+    world origin, so the trajectory has refined's scale (a metric bundle adjustment's) in base's world frame.
+    Returns (trajectory, stats with the similarity's scale and the corrections' size, both against base at its
+    own scale: median moved (m, and as a fraction of the rms distance of base's common centres from their mean)
+    and turned (deg)).
     """
     ib, ir = _associate(base, refined)  # ValueError below 3 common frames
     s, R, t = align_umeyama(refined.centres_m[ir], base.centres_m[ib], with_scale=True)
@@ -278,6 +281,8 @@ def graft_poses(base: Trajectory, refined: Trajectory) -> tuple[Trajectory, dict
     stats = {"grafted_frames": int(len(ib)), "similarity_scale": float(s),
              "moved_m_median": moved_m, "turned_deg_median": float(np.median(turned)),
              "moved_rel_median": moved_m / radius if radius > 0 else float("inf")}
+    if keep_refined_scale:
+        T[:, :3, 3] /= s
     return Trajectory(base.indices.copy(), base.timestamps_s.copy(), T, dict(base.stats)), stats
 
 

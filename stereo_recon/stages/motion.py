@@ -65,10 +65,10 @@ def scale_view_indices(todo: list[int], motion: MotionStereoConfig) -> set[int]:
 
 
 def rig_scale(motion_counts, motion: MotionStereoConfig) -> float | None:
-    """Odometry's scale against the rig's depth: the median rig/wide depth ratio over the pairs (None: < 3 pairs).
+    """The camera path's scale against the rig's depth: the median rig/wide depth ratio over the pairs (None: < 3 pairs).
 
-    The rig's depth against the wide pairs' depth (whose baselines are odometry's steps) measures
-    odometry's scale. Why it matters: around a truck, a trajectory 0.3 % small puts every camera 3 cm too
+    The rig's depth against the wide pairs' depth (whose baselines are the path's steps) measures the path's
+    scale: odometry's, or the bundle adjustment's when SfM refined the poses (``sfm.refine_with_sfm``). Why it matters: around a truck, a trajectory 0.3 % small puts every camera 3 cm too
     close to the centre at 9 m, and both side walls 3 cm inside. The rig's depth is the re-matched one of
     the scale views (``rig_scale_ratio_median``) when at least 3 of them give a ratio, else the fused
     depth's of every pair.
@@ -81,7 +81,7 @@ def rig_scale(motion_counts, motion: MotionStereoConfig) -> float | None:
 
 
 def motion_stereo(traj, setup: Setup, streamed: Streamed, plan: FusionPlan, ctx: RunContext):
-    """Wide-baseline depth for every posed view with a posed partner; VO's trajectory rescaled to the rig's depth.
+    """Wide-baseline depth for every posed view with a posed partner; the trajectory rescaled to the rig's depth.
 
     traj: the final trajectory (world-from-rectified-left-camera, m). Returns (trajectory, WideDepth): the
     trajectory scaled by the median rig/wide ratio (mode "vo", within ``max_rescale``; else the same one).
@@ -124,7 +124,7 @@ def motion_stereo(traj, setup: Setup, streamed: Streamed, plan: FusionPlan, ctx:
         else:
             # Not corrected, so every dimension may be off by as much: the run's data-quality gate
             # (``quality.trajectory_scale_check``) makes the verdict undecided.
-            log.warning("odometry's scale disagrees with the rig's depth by %.1f %%; not rescaled",
+            log.warning("the camera path's scale disagrees with the rig's depth by %.1f %%; not rescaled",
                         100 * (measured - 1.0))
     ctx.counts["motion_stereo_depth_scale"] = scale
     return traj, WideDepth(frozenset(views), tuple(motion_counts), scale)

@@ -10,7 +10,7 @@ import pytest
 
 from stereo_recon.core.errors import InputError, StageError
 from stereo_recon.sfm import SfMConfig, loop_pairs, sfm_poses
-from stereo_recon.trajectory import Trajectory, align_umeyama
+from stereo_recon.trajectory import Trajectory, absolute_trajectory_error, align_umeyama
 
 
 def _read_middlebury_par(path: Path) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -103,7 +103,7 @@ def test_sfm_metric_scale_from_depth_maps(tmp_path):
     """SfM on a rendered arc with exact depth maps: metric poses (scale error <= 0.5 %), small ATE."""
     import cv2
 
-    from stereo_recon.trajectory import absolute_trajectory_error, scale_error
+    from stereo_recon.trajectory import scale_error
 
     vo_scene = _vo_scene()
     n = 14
@@ -125,10 +125,11 @@ def test_sfm_metric_scale_from_depth_maps(tmp_path):
 
 @pytest.mark.parametrize("folded", [False, True])
 def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch, folded):
-    """SfM's poses replace VO's only as a refinement. VO: a 6.5 m orbit with a 1 deg, 20 cm wobble; SfM: the
-    true orbit in its own frame and scale (kept: the grafted views move to the truth), or one whose second
-    half is folded onto the first (another orbit, as SfM gave on a full-scale tanker of seed 2079: 0.5 of
-    the radius and 35 deg from VO), which is rejected with VO's poses kept and the reason recorded."""
+    """SfM's poses replace VO's only as a refinement. VO: a 6.5 m orbit with a 1 deg, 20 cm wobble, 10 % short
+    (as far scenes' odometry; up to 33 % on tuning draw 2082/21); SfM: the true orbit in its own frame, metric
+    (kept: the grafted views move to the truth, at SfM's scale), or one whose second half is folded onto the
+    first (another orbit, as SfM gave on a full-scale tanker of seed 2079: 0.5 of the radius and 35 deg from
+    VO), which is rejected with VO's poses kept and the reason recorded."""
     from scipy.spatial.transform import Rotation
 
     import stereo_recon.sfm as sfm
@@ -141,6 +142,7 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
         a = np.radians(1.0) * np.sin(2 * np.pi * k / 8)
         vo[k, :3, :3] = vo[k, :3, :3] @ Rotation.from_rotvec([0.0, a, 0.0]).as_matrix()
         vo[k, :3, 3] += 11.5 * a * vo[k, :3, 0]
+    vo[:, :3, 3] *= 0.9
     base = Trajectory(np.arange(n), np.arange(n) / 15.0, vo)
     refined_T = truth.copy()
     if folded:  # the second half mirrored through the x-z plane onto the first, turned to face the truck
@@ -149,7 +151,7 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
             refined_T[k, :3, 3] = F @ truth[k, :3, 3]
             refined_T[k, :3, :3] = F @ truth[k, :3, :3] @ F
     R = Rotation.from_euler("zyx", [30, 5, -4], degrees=True).as_matrix()
-    refined = Trajectory(np.arange(n), np.arange(n) / 15.0, refined_T).transformed(0.4, R, np.array([2.0, 1.0, -1.0]))
+    refined = Trajectory(np.arange(n), np.arange(n) / 15.0, refined_T).transformed(1.0, R, np.array([2.0, 1.0, -1.0]))
     monkeypatch.setattr(sfm, "sfm_poses", lambda *a, **k: refined)
     (tmp_path / "images").mkdir()
     for k in range(n):
@@ -166,7 +168,10 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
         assert np.array_equal(out.T_wc, vo)
     else:
         assert stats["moved_rel_median"] < 0.05 and stats["turned_deg_median"] < 1.5 and "rejected" not in stats
+        assert abs(stats["similarity_scale"] - 0.9) < 0.01
         assert err_out < 0.2 * err_vo
+        truth_traj = Trajectory(np.arange(n), np.arange(n) / 15.0, truth)
+        assert abs(absolute_trajectory_error(out, truth_traj)["scale"] - 1.0) < 1e-3   # SfM's metric scale, not VO's
 
 
 def test_a_failed_refinement_is_recorded_without_the_runs_work_folder(tmp_path, monkeypatch):

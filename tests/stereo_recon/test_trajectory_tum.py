@@ -157,6 +157,23 @@ def test_graft_poses_puts_refined_frames_in_base_world_and_carries_corrections()
         graft_poses(base, gt.subset(np.array([0, 1])))
 
 
+def test_graft_poses_can_keep_the_refined_trajectory_s_metric_scale():
+    # base: the truth's shape at 0.75 of its scale (VO short, as on far scenes); refined: the truth exactly, in
+    # another world frame (a metric bundle adjustment's)
+    gt = _orbit(n=36)
+    base = Trajectory(gt.indices, gt.timestamps_s, gt.T_wc.copy())
+    base.T_wc[:, :3, 3] *= 0.75
+    sel = np.arange(0, 36, 3)
+    R = Rotation.from_euler("zyx", [-25, 4, 10], degrees=True).as_matrix()
+    refined = gt.subset(sel).transformed(1.0, R, np.array([3.0, 1.0, -0.5]))
+    kept, stats = graft_poses(base, refined)
+    metric, stats_m = graft_poses(base, refined, keep_refined_scale=True)
+    assert stats == stats_m and abs(stats["similarity_scale"] - 0.75) < 1e-9
+    assert abs(absolute_trajectory_error(kept, gt)["scale"] - 1 / 0.75) < 1e-6   # base's scale: 25 % short
+    ate = absolute_trajectory_error(metric, gt, with_scale=False)                 # the truth, in base's world
+    assert ate["rmse_m"] < 1e-6 and ate["rot_max_deg"] < 1e-6
+
+
 def test_orbit_centre_of_a_partial_arc_is_the_circle_s_not_the_mean(rng):
     """Cameras on a 240 deg arc of radius 2 m round (3, -1), 1.5 m up, with 2 cm of jitter, in a world whose up
     is tilted 10 deg: the fitted centre is within 3 cm of the truth, where the mean of the centres lies
