@@ -430,9 +430,10 @@ def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work:
                             config=SfMConfig(), fps=fps, image_names=names)
         # SfM's scale, not VO's: both are metric from the rig's depth, but the bundle adjustment's (the median
         # stereo/SfM depth ratio over thousands of points in every view) is the better one. Tuning seeds
-        # 2079-2082 (139 far-scene runs): after motion stereo's rescale to the rig's depth, SfM's scale was within
-        # -1.0..+0.5 % (5th-95th percentile) of where the path ended, VO's -0.2..+6.0 %, up to +33 % (2082/21, a
-        # far flatbed whose VO turned 14 deg off): one motion stereo refused to correct (its max_rescale).
+        # 2079-2082 (139 runs with both): SfM's path length lay within -0.5..+1.0 % (5th-95th percentile) of
+        # where motion stereo's rescale to the rig's depth finally put it, VO's within -5.6..+0.2 %, down to
+        # -24.6 % (2082/21, a far flatbed whose VO turned 14 deg off), which motion stereo refused to correct
+        # (beyond its max_rescale). Measured: docs/ROUNDS.md, issue 12's fifty-third round.
         out, stats = graft_poses(traj, refined, keep_refined_scale=True)
     except (StageError, ValueError) as err:
         log.warning("pose refinement by SfM failed (%s); keeping visual odometry's poses", err)
