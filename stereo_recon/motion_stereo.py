@@ -70,11 +70,12 @@ class MotionStereoConfig:
     voxel_footprint_px: float | None = 1.0
     # Rescale the trajectory (odometry's, at the bundle adjustment's scale when SfM refined it) by the median
     # ratio of the rig's depth to the wide pairs' depth (``reconstruct``): the wide pairs' baselines are the
-    # path's steps, so that ratio is the path's scale error as the rig's dense depth sees it. Skipped when it exceeds max_rescale (the run's
-    # ``trajectory_scale`` gate then refuses it). 0.15 (was 0.05): on tuning seeds 2045-2046 the ratio
-    # applied left the path within 0.6 % of the true scale on 70 of the 71 runs it was applied to (1.5 % on the
-    # other); the one beyond 5 % (+6.48 %, true +6.20 %) read L -6.65 / H -6.30 % unscaled and -0.12 /
-    # -0.22 % rescaled; a step 10 % short is measured within 0.3 % (tests/stereo_recon/test_motion_stereo.py).
+    # path's steps, so that ratio is the path's scale error as the rig's dense depth sees it. Skipped when it
+    # exceeds max_rescale (the run's ``trajectory_scale`` gate then refuses it). 0.15 (was 0.05): on tuning
+    # seeds 2045-2046 the ratio applied left the path within 0.6 % of the true scale on 70 of the 71 runs it
+    # was applied to (1.5 % on the other); the one beyond 5 % (+6.48 %, true +6.20 %) read L -6.65 / H -6.30 %
+    # unscaled and -0.12 / -0.22 % rescaled; a step 10 % short is measured within 0.3 %
+    # (tests/stereo_recon/test_motion_stereo.py).
     rescale_trajectory: bool = True
     max_rescale: float = 0.15
     # The rig's depth that ratio is taken from. "lk" (default): corners of every paired view, tracked with

@@ -65,11 +65,12 @@ def scale_view_indices(todo: list[int], motion: MotionStereoConfig) -> set[int]:
 
 
 def rig_scale(motion_counts, motion: MotionStereoConfig) -> float | None:
-    """The camera path's scale against the rig's depth: the median rig/wide depth ratio over the pairs (None: < 3 pairs).
+    """The camera path's scale against the rig's depth: the median rig/wide depth ratio over the pairs (None: < 3).
 
     The rig's depth against the wide pairs' depth (whose baselines are the path's steps) measures the path's
-    scale: odometry's, or the bundle adjustment's when SfM refined the poses (``sfm.refine_with_sfm``). Why it matters: around a truck, a trajectory 0.3 % small puts every camera 3 cm too
-    close to the centre at 9 m, and both side walls 3 cm inside. The rig's depth is the re-matched one of
+    scale: odometry's, or the bundle adjustment's when SfM refined the poses (``sfm.refine_with_sfm``). Why it
+    matters: around a truck, a trajectory 0.3 % small puts every camera 3 cm too close to the centre at 9 m,
+    and both side walls 3 cm inside. The rig's depth is the re-matched one of
     the scale views (``rig_scale_ratio_median``) when at least 3 of them give a ratio, else the fused
     depth's of every pair.
     """
