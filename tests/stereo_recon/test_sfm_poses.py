@@ -126,7 +126,7 @@ def test_sfm_metric_scale_from_depth_maps(tmp_path):
 @pytest.mark.parametrize("folded", [False, True])
 def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch, folded):
     """SfM's poses replace VO's only as a refinement. VO: a 6.5 m orbit with a 1 deg, 20 cm wobble, 10 % short
-    (as far scenes' odometry; up to 33 % on tuning draw 2082/21); SfM: the true orbit in its own frame, metric
+    (as far scenes' odometry; 24 % short on tuning draw 2082/21); SfM: the true orbit in its own frame, metric
     (kept: the grafted views move to the truth, at SfM's scale), or one whose second half is folded onto the
     first (another orbit, as SfM gave on a full-scale tanker of seed 2079: 0.5 of the radius and 35 deg from
     VO), which is rejected with VO's poses kept and the reason recorded."""
