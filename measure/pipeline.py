@@ -119,6 +119,9 @@ class MeasureConfig:
     roof_cells_quantile: float | None = 0.9     # a height read at the roof level spans its upper stretch: this quantile
                                                 # of its cells' median levels (None: off; see DimensionConfig)
     wall_min_share: float = 0.85
+    peak_min_prominence_sigmas: float | None = None  # place a wall at the outermost peak standing this many of the
+                                             # density's standard errors out, not at a noise ripple on its flank
+                                             # (None, the default: off; see measure.dimensions.DimensionConfig)
     shoulder_doubt_excess: float | None = 1.0  # a side's points outside its wall, more than the wall's scatter puts there
                                              # but too few for a shoulder: the width with them is a reading the
                                              # uncertainty spans (None: off; see measure.dimensions.DimensionConfig)

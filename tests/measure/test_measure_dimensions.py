@@ -412,6 +412,33 @@ def test_walls_are_placed_by_their_sideways_facing_points_not_pulled_inwards():
     assert abs(facing[0] - W) < 0.0005, facing[0]          # the walls' own points sit on the walls
 
 
+def test_a_ripple_on_a_roofs_edge_smeared_past_a_wall_is_no_wall():
+    """``_width_rule`` on walls at +-W/2 (2 mm Gaussians) under a roof whose edge is smeared 0.04 m past the left
+    wall (a dark roof's edge: uniform points, all near the top, so a fringe and no shoulder): the smear's density
+    is a fifth of the wall's peak, and its sampling ripples are local maxima that pass the height test. With
+    ``peak_min_prominence_sigmas`` (opt-in) the wall is placed at the outermost peak that stands out of the
+    density's noise; without it (the default) the outermost ripple is read as the wall."""
+    from measure.dimensions import _width_rule
+    from measure.kde import linear_binning
+
+    W, n = 0.38, 20_000
+    step, lo = 0.0002, -0.3
+    nb = int(0.6 / step)
+    grid = lo + step * np.arange(nb)
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        walls = np.concatenate([s * W / 2 + rng.normal(0.0, 0.002, n) for s in (-1, 1)])
+        top = np.concatenate([rng.uniform(-W / 2, W / 2, 4 * n), rng.uniform(-W / 2 - 0.04, -W / 2, n)])
+        side = linear_binning(walls, lo, step, nb)
+        every = side + linear_binning(top, lo, step, nb)
+        up = np.cumsum(linear_binning(top, lo, step, nb))
+        off = _width_rule(every, grid, 0.002, step, DimensionConfig(), noise=0.002, side_counts=side, upper_cdf=up)
+        on = _width_rule(every, grid, 0.002, step, replace(DimensionConfig(), peak_min_prominence_sigmas=5.0),
+                         noise=0.002, side_counts=side, upper_cdf=up)
+        assert off[0] > W + 0.02, (seed, off[0])          # a ripple in the smear taken for the wall
+        assert on[1] == "kde_two_peaks" and abs(on[0] - W) < 0.001, (seed, on[:2])
+
+
 def test_point_normals_of_a_box_face_along_its_axes():
     """k-neighbour plane normals on a box's faces (1 mm noise at 4 mm spacing) are within 30 deg of the face's
     axis for nearly all points (the facing selection's |cos| >= 0.7 is 45 deg)."""
