@@ -533,9 +533,9 @@ def _width_rule(counts, grid, h, step, cfg: DimensionConfig, noise: float = 0.0,
     mid = 0.5 * (lo + hi)
     left = pos[pos < mid] if len(pos) else pos
     right = pos[pos > mid] if len(pos) else pos
-    # Every peak tells whether the walls span the extent (a ripple there still shows points there), but a
-    # wall is placed at the outermost peak that stands out of the density's noise: a ripple far out on a
-    # wall's flank (a dark roof's edge smeared past the wall) is no wall (peak_min_prominence_sigmas).
+    # Every peak tells whether the walls span the extent (a ripple there still shows points there); with
+    # peak_min_prominence_sigmas (opt-in) a wall is placed at the outermost peak that stands out of the
+    # density's noise, not at a ripple far out on its flank (a dark roof's edge smeared past the wall).
     sl, sr = (pos < mid) & stands, (pos > mid) & stands
     outer_left, outer_right = (pos[sl] if sl.any() else left), (pos[sr] if sr.any() else right)
     # Walls must span most of the cloud's extent, measured between core_fraction quantiles: a fused
