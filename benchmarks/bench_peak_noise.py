@@ -4,7 +4,7 @@ Why: the width rule takes its walls from the projection density's peaks, and a r
 must not pass for one (``DimensionConfig.peak_min_prominence_sigmas``). This draws points uniform on [0, 1] m
 (no surface, only noise) at several counts and bandwidths, smooths them as the width rule does
 (``measure.kde.smooth_counts``), and prints the prominence (``scipy.signal.peak_prominences``) of every ripple
-inside [0.05, 0.95] m over the kernel's standard error sqrt(f / (2 sqrt(pi) n h)) at it: its quantiles, and
+inside [0.05, 0.95] m over the kernel's standard error at it (``measure.kde.kde_standard_error``): its quantiles, and
 those of the highest ripple of each stretch. The stretch's highest ripple is left out of both (its prominence
 runs down to the empty ends, its full height).
 
@@ -22,7 +22,7 @@ from scipy.signal import peak_prominences
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from measure.kde import linear_binning, local_maxima, smooth_counts  # noqa: E402
+from measure.kde import kde_standard_error, linear_binning, local_maxima, smooth_counts  # noqa: E402
 
 
 def ripple_prominences(n: int, h: float, rng) -> np.ndarray:
@@ -34,7 +34,7 @@ def ripple_prominences(n: int, h: float, rng) -> np.ndarray:
     grid = lo + step * np.arange(nb)
     pk = local_maxima(dens)
     pk = pk[(grid[pk] > 0.05) & (grid[pk] < 0.95)]
-    se = np.sqrt(dens[pk] / (2 * np.sqrt(np.pi) * n * h))
+    se = kde_standard_error(dens[pk], n, h)
     r = peak_prominences(dens, pk)[0] / se
     return np.delete(r, np.argmax(dens[pk]))
 

@@ -45,7 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import peak_prominences
 
-from measure.kde import binned_kde, linear_binning, local_maxima, lscv_bandwidth, refine_peak, smooth_counts
+from measure.kde import (binned_kde, kde_standard_error, linear_binning, local_maxima, lscv_bandwidth, refine_peak,
+                         smooth_counts)
 from measure.normals import point_normals
 
 log = logging.getLogger(__name__)
@@ -380,8 +381,8 @@ def _wall_peaks(counts, grid, dens, h, step, cfg: DimensionConfig) -> tuple[np.n
     pk = pk[(dens[pk] >= cfg.peak_min_rel * dens.max()) | (mass >= cfg.wall_min_mass)] if len(pk) else pk
     stands = np.ones(len(pk), dtype=bool)
     if cfg.peak_min_prominence_sigmas is not None and len(pk):
-        # The density's own sampling noise at the peak: a Gaussian kernel's standard error.
-        se = np.sqrt(dens[pk] / (2 * np.sqrt(np.pi) * max(cum[-1], 1.0) * h))
+        # The density's own sampling noise at the peak.
+        se = kde_standard_error(dens[pk], cum[-1], h)
         stands = peak_prominences(dens, pk)[0] >= cfg.peak_min_prominence_sigmas * se
     return np.array([refine_peak(grid, dens, int(i)) for i in pk]), stands
 

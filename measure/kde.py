@@ -117,6 +117,12 @@ def smooth_counts(counts: np.ndarray, step_m: float, bandwidth_m: float) -> np.n
     return dens / total if total > 0 else dens
 
 
+def kde_standard_error(density: np.ndarray, n: float, bandwidth_m: float) -> np.ndarray:
+    """Sampling standard error (1/m) of a Gaussian KDE of n points at bandwidth_m (m) where it reads density
+    (1/m, normalised): sqrt(f R(K) / (n h)), R(K) = 1 / (2 sqrt(pi)) for a Gaussian kernel."""
+    return np.sqrt(np.asarray(density) / (2 * np.sqrt(np.pi) * max(float(n), 1.0) * bandwidth_m))
+
+
 def local_maxima(density: np.ndarray, min_rel: float = 0.0) -> np.ndarray:
     """Indices of strict-or-plateau local maxima of a 1-D array with value >= min_rel * max."""
     d = np.asarray(density)
