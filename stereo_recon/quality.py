@@ -201,7 +201,8 @@ def pose_refinement_check(counts: dict) -> dict | None:
     """Whether SfM's bundle adjustment refined odometry's poses (``counts["sfm_refine"]`` in run.json); None if not run.
 
     Warns when it failed or was rejected (its poses far from odometry's: another solution, not a refinement):
-    the run then keeps odometry's poses, whose views turn by a few tenths of a degree at full scale.
+    the run then keeps odometry's poses, whose views turn by a few tenths of a degree at full scale; and when it
+    was another solution kept over odometry's because the views' depth agreed better with it.
     """
     refine = counts.get("sfm_refine")
     if refine is None:
@@ -209,6 +210,10 @@ def pose_refinement_check(counts: dict) -> dict | None:
     if isinstance(refine, dict) and refine.get("rejected"):
         return check("pose_refinement", "warn", f"bundle adjustment rejected: {refine['rejected']}; visual odometry's "
                                                 "poses kept")
+    if isinstance(refine, dict) and refine.get("kept_over_odometry"):
+        # Two different solutions, one chosen by the views' depth (``sfm.refine_with_sfm``): worth a look.
+        return check("pose_refinement", "warn", f"bundle adjustment found another solution than visual odometry: "
+                                                f"{refine['kept_over_odometry']}")
     if isinstance(refine, dict):
         # Guided matching runs only after a first pass registered too few: worth saying (SfMConfig.guided_retry).
         how = "matched again guided by epipolar geometry, " if refine.get("guided_matching") else ""

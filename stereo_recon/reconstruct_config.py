@@ -101,13 +101,14 @@ class ReconstructConfig:
     # before the finer voxel), for ~25 s of SfM (one thread) on 35 HD720 images. None = with motion stereo (far
     # scenes) only; if SfM fails, VO's poses are kept (logged, counts["sfm_refine"]).
     refine_poses_sfm: bool | None = None
-    # SfM's poses are kept only as a refinement of VO's: when, after the similarity, they lie further from
-    # VO's than refine_max_move_rel of the path's rms radius or refine_max_turn_deg (medians over the
-    # views), SfM has found another solution (another orbit, seen on a full-scale tanker: 0.50 and 35 deg)
-    # and VO's poses are kept (logged, counts["sfm_refine"]["rejected"]). Where SfM was right on tuning seed
-    # 2079 (35 runs), VO lay up to 0.10 of the radius (a 17 m box flown 20 m out) and 8.0 deg (a 17 m
-    # semi-trailer 30 m out) from it: a magnitude alone cannot say which of the two is wrong, so the bounds
-    # stay wide.
+    # SfM's poses are kept as a refinement of VO's while, after the similarity, they lie within
+    # refine_max_move_rel of the path's rms radius and refine_max_turn_deg of VO's (medians over the views).
+    # Beyond, SfM has found another solution and one of the two is wrong (SfM another orbit on a full-scale
+    # tanker: 0.50 and 35 deg; VO broken on another: 0.38 and 18 deg): the poses under which consecutive views'
+    # depth maps agree better are kept (``sfm.refine_with_sfm``; counts["sfm_refine"]["rejected"] or
+    # ["kept_over_odometry"]). Where SfM was right on tuning seed 2079 (35 runs), VO lay up to 0.10 of the
+    # radius (a 17 m box flown 20 m out) and 8.0 deg (a 17 m semi-trailer 30 m out) from it: a magnitude alone
+    # cannot say which of the two is wrong, so the bounds stay wide and only beyond them the depth decides.
     refine_max_move_rel: float = 0.2
     refine_max_turn_deg: float = 20.0
     # TSDF settings; voxel_m None = derived from the first keyframe's depth.

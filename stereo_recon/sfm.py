@@ -395,6 +395,25 @@ def _reconstruct(pycolmap, image_dir: Path, names: list[str], work_dir: Path, op
     return _largest_model(models, names, config), mode, n_pairs
 
 
+def _depth_witness(vo: Trajectory, sfm: Trajectory, keyframes, depth_dir: Path, K: np.ndarray,
+                   baseline_m: float) -> dict | None:
+    """Mean depth agreement of consecutive fused views under VO's and under SfM's (grafted) poses: {"vo", "sfm",
+    "pairs"}; None when fewer than two views have a pose in both and a depth map (``trajectory.depth_agreement``)."""
+    from stereo_recon.trajectory import depth_agreement
+
+    pos_vo = {int(i): k for k, i in enumerate(vo.indices)}
+    pos_sfm = {int(i): k for k, i in enumerate(sfm.indices)}
+    views = [int(i) for i in sorted(keyframes)
+             if int(i) in pos_vo and int(i) in pos_sfm and (depth_dir / f"{int(i):06d}.npy").is_file()]
+    if len(views) < 2:
+        return None
+    depths = [np.load(depth_dir / f"{i:06d}.npy") for i in views]
+    fb = float(K[0, 0]) * float(baseline_m)
+    agree = {name: float(np.mean(depth_agreement(np.stack([tr.T_wc[pos[i]] for i in views]), depths, K, fb)))
+             for name, tr, pos in (("vo", vo, pos_vo), ("sfm", sfm, pos_sfm))}
+    return {**agree, "pairs": len(views) - 1}
+
+
 def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work: Path, K: np.ndarray,
                     baseline_m: float, fps: float | None, counts: dict, max_move_rel: float,
                     max_turn_deg: float) -> Trajectory:
@@ -445,15 +464,31 @@ def refine_with_sfm(traj: Trajectory, keyframes, partners: dict[int, int], work:
     counts["sfm_refine"] = {"images": len(names), "registered": int(refined.stats.get("registered", len(refined))),
                             "guided_matching": bool(refined.stats.get("guided_matching", False)), **stats}
     if stats["moved_rel_median"] > max_move_rel or stats["turned_deg_median"] > max_turn_deg:
-        # Not a refinement but another solution: SfM can converge to a self-consistent wrong orbit (each
-        # view's points still agree with its stereo depth), while VO's tracks chain view to view.
-        # Measured: docs/ROUNDS.md, issue 12's fiftieth round.
-        reason = (f"SfM's poses lie {stats['moved_rel_median']:.2f} of the path's radius and "
-                  f"{stats['turned_deg_median']:.1f} deg from visual odometry's (median; a refinement stays within "
-                  f"{max_move_rel:g} and {max_turn_deg:g} deg)")
-        log.warning("pose refinement by SfM rejected: %s; keeping visual odometry's poses", reason)
-        counts["sfm_refine"]["rejected"] = reason
-        return traj
+        # Not a refinement but another solution, and one of the two is wrong: SfM can converge to a
+        # self-consistent wrong orbit (each view's points still agree with its stereo depth; fiftieth round), and
+        # VO can break (a far tanker's odometry turned 130 deg off at four of its twelve views while SfM was
+        # right to 0.02 m; fifty-sixth round). The witness is the views' own depth: whichever poses make
+        # consecutive views' depth maps agree better are kept (``depth_agreement``); without depth, VO's.
+        where = (f"SfM's poses lie {stats['moved_rel_median']:.2f} of the path's radius and "
+                 f"{stats['turned_deg_median']:.1f} deg from visual odometry's (median; a refinement stays within "
+                 f"{max_move_rel:g} and {max_turn_deg:g} deg)")
+        witness = _depth_witness(traj, out, keyframes, work / "depth", K, baseline_m)
+        if witness is not None:
+            counts["sfm_refine"]["depth_agreement"] = witness
+        if witness is None or not witness["sfm"] > witness["vo"]:
+            reason = where + ("" if witness is None else
+                              f"; consecutive views' depth agrees on {100 * witness['vo']:.1f} % of their pixels with "
+                              f"visual odometry's poses, {100 * witness['sfm']:.1f} % with SfM's")
+            log.warning("pose refinement by SfM rejected: %s; keeping visual odometry's poses", reason)
+            counts["sfm_refine"]["rejected"] = reason
+            return traj
+        counts["sfm_refine"]["kept_over_odometry"] = (
+            where + f"; kept: consecutive views' depth agrees on {100 * witness['sfm']:.1f} % of their pixels with "
+                    f"SfM's poses, {100 * witness['vo']:.1f} % with visual odometry's")
+        log.warning("pose refinement by SfM is another solution than visual odometry's (%s), kept: consecutive "
+                    "views' depth agrees better with it (%.1f %% against %.1f %% of their pixels)", where,
+                    100 * witness["sfm"], 100 * witness["vo"])
+        return out
     log.info("poses: %d of %d frames bundle-adjusted by SfM (median change %.1f mm, %.3f deg)",
              stats["grafted_frames"], len(names), 1000 * stats["moved_m_median"], stats["turned_deg_median"])
     return out

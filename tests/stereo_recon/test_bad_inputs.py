@@ -421,7 +421,8 @@ def test_a_scale_the_run_did_not_correct_fails_its_gate():
 
 
 def test_a_rejected_or_failed_bundle_adjustment_is_a_warning_in_the_checks():
-    """SfM's refinement rejected (its poses another solution) or failed: a warning naming why, not a gate."""
+    """SfM's refinement rejected (its poses another solution) or failed, or another solution kept over odometry's: a
+    warning naming why, not a gate."""
     from stereo_recon.quality import checks_from_reconstruction, pose_refinement_check
 
     applied = {"grafted_frames": 37, "moved_rel_median": 0.01, "turned_deg_median": 0.4}
@@ -433,6 +434,9 @@ def test_a_rejected_or_failed_bundle_adjustment_is_a_warning_in_the_checks():
     c = pose_refinement_check({"sfm_refine": rejected})
     assert c["status"] == "warn" and "0.50 of the path's radius" in c["detail"] and "odometry's poses kept" in c["detail"]
     assert pose_refinement_check({"sfm_refine": "failed: too few images registered"})["status"] == "warn"
+    kept = pose_refinement_check({"sfm_refine": {**applied, "kept_over_odometry": "SfM's poses lie 0.38 of the path's "
+                                                 "radius; kept: depth agrees on 49.4 % with SfM's, 33.1 % with VO's"}})
+    assert kept["status"] == "warn" and "another solution" in kept["detail"] and "49.4 %" in kept["detail"], kept
     assert pose_refinement_check({"frames_read": 80}) is None   # not a far scene: no bundle adjustment
     names = [ch["name"] for ch in checks_from_reconstruction({"source": {}, "counts": {"frames_read": 80,
                                                                                      "sfm_refine": rejected}})]

@@ -123,29 +123,46 @@ def test_sfm_metric_scale_from_depth_maps(tmp_path):
     assert absolute_trajectory_error(est, gt, with_scale=True)["rmse_rel_path"] <= 0.01
 
 
-@pytest.mark.parametrize("folded", [False, True])
-def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch, folded):
-    """SfM's poses replace VO's only as a refinement. VO: a 6.5 m orbit with a 1 deg, 20 cm wobble, 10 % short
-    (as far scenes' odometry; 24 % short on tuning draw 2082/21); SfM: the true orbit in its own frame, metric
-    (kept: the grafted views move to the truth, at SfM's scale), or one whose second half is folded onto the
-    first (another orbit, as SfM gave on a full-scale tanker of seed 2079: 0.5 of the radius and 35 deg from
-    VO), which is rejected with VO's poses kept and the reason recorded."""
+@pytest.mark.parametrize("case", ["refinement", "sfm_folded", "vo_broken"])
+def test_sfm_refinement_is_kept_only_near_visual_odometry_or_where_the_depth_agrees_better(tmp_path, monkeypatch, case):
+    """SfM's poses replace VO's as a refinement, and as another solution only where the views' depth agrees better.
+
+    Truth: 24 views on a 6.5 m orbit with their rendered depth maps. "refinement": VO with a 1 deg, 20 cm wobble,
+    10 % short (as far scenes' odometry; 24 % short on tuning draw 2082/21), SfM the true orbit in its own frame,
+    metric: kept, the grafted views move to the truth, at SfM's scale. "sfm_folded": VO as before, 1 % short;
+    SfM with its second half folded onto the first (another orbit, as SfM gave on a full-scale tanker of seed 2079:
+    0.5 of the radius and 35 deg from VO): rejected, VO's poses kept, the reason recorded with both agreements.
+    "vo_broken": VO true up to view 12, then the rest of the path tilted by 60 deg about a level axis through it
+    (as odometry broke on tuning draw 2084/34, 130 deg off at four of its twelve views), SfM the true orbit: beyond the bounds, but consecutive views' depth agrees
+    better with it, so it is kept."""
     from scipy.spatial.transform import Rotation
 
     import stereo_recon.sfm as sfm
     from stereo_recon.reconstruct_config import ReconstructConfig
 
-    n = 24
-    truth = _vo_scene().orbit_poses(n, radius_m=6.5, height_m=4.7, target=(0.0, 0.0, 0.0), wobble_m=0.0)
-    vo = truth.copy()
+    vo_scene = _vo_scene()
+    n, K = 24, np.array([[130.0, 0.0, 79.5], [0.0, 130.0, 59.5], [0.0, 0.0, 1.0]])
+    truth = vo_scene.orbit_poses(n, radius_m=6.5, height_m=4.7, target=(0.0, 0.0, 0.0), wobble_m=0.0)
+    scene = vo_scene.build_scene(0)
+    (tmp_path / "depth").mkdir()
     for k in range(n):
-        a = np.radians(1.0) * np.sin(2 * np.pi * k / 8)
-        vo[k, :3, :3] = vo[k, :3, :3] @ Rotation.from_rotvec([0.0, a, 0.0]).as_matrix()
-        vo[k, :3, 3] += 11.5 * a * vo[k, :3, 0]
-    vo[:, :3, 3] *= 0.9
+        np.save(tmp_path / "depth" / f"{k:06d}.npy", vo_scene.render(scene, K, (160, 120), truth[k], supersample=1)[1])
+    vo = truth.copy()
+    if case == "vo_broken":   # from view 12 on, the whole path tilted by 60 deg about a level axis through it
+        turn = np.eye(4)
+        turn[:3, :3] = Rotation.from_rotvec([np.radians(60.0), 0.0, 0.0]).as_matrix()
+        centre = truth[n // 2, :3, 3]
+        turn[:3, 3] = centre - turn[:3, :3] @ centre
+        vo[n // 2:] = turn @ truth[n // 2:]
+    else:
+        for k in range(n):
+            a = np.radians(1.0) * np.sin(2 * np.pi * k / 8)
+            vo[k, :3, :3] = vo[k, :3, :3] @ Rotation.from_rotvec([0.0, a, 0.0]).as_matrix()
+            vo[k, :3, 3] += 11.5 * a * vo[k, :3, 0]
+        vo[:, :3, 3] *= 0.9 if case == "refinement" else 0.99
     base = Trajectory(np.arange(n), np.arange(n) / 15.0, vo)
     refined_T = truth.copy()
-    if folded:  # the second half mirrored through the x-z plane onto the first, turned to face the truck
+    if case == "sfm_folded":  # the second half mirrored through the x-z plane onto the first, turned to face the truck
         F = np.diag([1.0, -1.0, 1.0])
         for k in range(n // 2, n):
             refined_T[k, :3, 3] = F @ truth[k, :3, 3]
@@ -158,19 +175,26 @@ def test_sfm_refinement_is_kept_only_near_visual_odometry(tmp_path, monkeypatch,
         (tmp_path / "images" / f"{k:06d}.png").write_bytes(b"")
     counts: dict = {}
     c = ReconstructConfig()
-    out = sfm.refine_with_sfm(base, list(range(n)), {}, tmp_path, np.eye(3), 0.12, 15.0, counts, c.refine_max_move_rel,
+    out = sfm.refine_with_sfm(base, list(range(n)), {}, tmp_path, K, 0.12, 15.0, counts, c.refine_max_move_rel,
                               c.refine_max_turn_deg)
     stats = counts["sfm_refine"]
-    err_vo = np.linalg.norm(vo[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
-    err_out = np.linalg.norm(out.T_wc[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
-    if folded:
+    truth_traj = Trajectory(np.arange(n), np.arange(n) / 15.0, truth)
+    if case == "sfm_folded":
         assert stats["moved_rel_median"] > 0.2 and "rejected" in stats
+        assert stats["depth_agreement"]["vo"] > stats["depth_agreement"]["sfm"]
         assert np.array_equal(out.T_wc, vo)
+    elif case == "vo_broken":
+        assert stats["turned_deg_median"] > c.refine_max_turn_deg and "rejected" not in stats
+        assert stats["depth_agreement"]["sfm"] > stats["depth_agreement"]["vo"] and "kept_over_odometry" in stats
+        assert absolute_trajectory_error(out, truth_traj)["rmse_rel_path"] < 1e-6   # every frame here is a view
+        assert absolute_trajectory_error(base, truth_traj)["rmse_rel_path"] > 0.02
     else:
         assert stats["moved_rel_median"] < 0.05 and stats["turned_deg_median"] < 1.5 and "rejected" not in stats
+        assert "depth_agreement" not in stats   # a refinement needs no witness
         assert abs(stats["similarity_scale"] - 0.9) < 0.01
+        err_vo = np.linalg.norm(vo[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
+        err_out = np.linalg.norm(out.T_wc[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
         assert err_out < 0.2 * err_vo
-        truth_traj = Trajectory(np.arange(n), np.arange(n) / 15.0, truth)
         assert abs(absolute_trajectory_error(out, truth_traj)["scale"] - 1.0) < 1e-3   # SfM's metric scale, not VO's
 
 
