@@ -138,19 +138,24 @@ def depth_edge_mask(depth_m: np.ndarray, step_rel: float, window_px: int = 5, fa
 
 def consistent_depth_mask(depth_m: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
                           others: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                          rel_tol: float = 0.01, min_agree: int = 1) -> np.ndarray:
+                          rel_tol: float = 0.01, min_agree: int = 1, fb_px_m: float | None = None,
+                          disparity_tol_px: float | None = None) -> np.ndarray:
     """Pixels of a depth map that other views confirm (the geometric consistency check of MVS fusion).
 
     depth_m: (H, W) z-depth in m of one view (NaN or 0 = invalid); K: (3, 3) its pinhole intrinsics
     (px, OpenCV centres); T_wc: (4, 4) its world-from-camera pose (m). others: (depth_m, K, T_wc) of
     other views, same conventions. A pixel's 3-D point agrees with another view when it projects
     inside it onto a valid depth within ``rel_tol`` x its depth there; points hidden or unseen there
-    neither agree nor disagree. Returns (H, W) bool: valid and agreed by at least ``min_agree`` views.
+    neither agree nor disagree. With fb_px_m (the rig's focal x baseline, px m) and disparity_tol_px, agreement
+    is judged in disparity instead, within disparity_tol_px of fb / depth (as the rig measured it). Returns (H, W)
+    bool: valid and agreed by at least ``min_agree`` views.
 
     Stereo on weakly textured panels interpolates, and what it interpolates differs from view to
     view (a truck side +1 cm from one view, -4 cm from another); averaging those in the TSDF moves
     the fused surface, while depths that several views reproduce are the ones worth fusing.
     """
+    if (fb_px_m is None) != (disparity_tol_px is None):
+        raise ValueError("consistent_depth_mask: give fb_px_m and disparity_tol_px together")
     z = np.asarray(depth_m, dtype=np.float64)
     valid = np.isfinite(z) & (z > 0)
     v, u = np.nonzero(valid)
@@ -170,11 +175,43 @@ def consistent_depth_mask(depth_m: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
         inside = (zj > 0) & (uj >= 0) & (uj < wj) & (vj >= 0) & (vj < hj)
         idx = np.flatnonzero(inside)
         seen = dj[vj[idx].astype(np.intp), uj[idx].astype(np.intp)]
-        ok = np.isfinite(seen) & (np.abs(seen - zj[idx]) <= rel_tol * zj[idx])
+        if disparity_tol_px is None:
+            ok = np.isfinite(seen) & (np.abs(seen - zj[idx]) <= rel_tol * zj[idx])
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ok = np.abs(fb_px_m / seen.astype(np.float64) - fb_px_m / zj[idx]) <= disparity_tol_px
         agree[idx[ok]] += 1
     mask = np.zeros(z.shape, dtype=bool)
     mask[v, u] = agree >= min_agree
     return mask
+
+
+def depth_agreement(T_wc: np.ndarray, depths_m: list, K: np.ndarray, fb_px_m: float, tol_px: float = 1.0,
+                    step_px: int = 8) -> np.ndarray:
+    """How well consecutive views' depth maps agree under the given poses: one fraction per consecutive pair.
+
+    T_wc: (N, 4, 4) world-from-camera poses (m) of N views; depths_m: their N z-depth maps (H, W) in metres
+    (NaN or <= 0 where invalid), each in its own camera; K (3, 3) px the cameras' intrinsics; fb_px_m: the rig's
+    focal x baseline (px m), so that agreement is judged in disparity, as the rig measured it. For each pair
+    (k, k+1), the valid pixels of view k on a grid of step_px are moved into view k+1 (``consistent_depth_mask``);
+    the fraction of them that land inside view k+1 on a valid depth within tol_px of disparity of their own is
+    returned ((N-1,)). Poses that put two views in the wrong place relative to each other move the points off
+    their surfaces, out of the view, or behind it, and their pair's fraction drops towards 0 (issue 12,
+    fifty-sixth round: a full-scale tanker whose odometry broke at four of its twelve pairs read 0.00 there and
+    0.45-0.55 elsewhere).
+    """
+    K = np.asarray(K, np.float64)
+    K_grid = K.copy()   # the grid's pixel (i, j) is the view's (i * step, j * step)
+    K_grid[:2] /= step_px
+    out = np.zeros(max(len(depths_m) - 1, 0))
+    for k in range(len(out)):
+        z = np.asarray(depths_m[k])[::step_px, ::step_px]
+        n_valid = int((np.isfinite(z) & (z > 0)).sum())
+        if n_valid:
+            agreed = consistent_depth_mask(z, K_grid, T_wc[k], [(depths_m[k + 1], K, T_wc[k + 1])],
+                                           fb_px_m=fb_px_m, disparity_tol_px=tol_px)
+            out[k] = float(agreed.sum()) / n_valid
+    return out
 
 
 def pixel_centre_intrinsics(K: np.ndarray) -> np.ndarray:

@@ -398,8 +398,8 @@ def _reconstruct(pycolmap, image_dir: Path, names: list[str], work_dir: Path, op
 def _depth_witness(vo: Trajectory, sfm: Trajectory, keyframes, depth_dir: Path, K: np.ndarray,
                    baseline_m: float) -> dict | None:
     """Mean depth agreement of consecutive fused views under VO's and under SfM's (grafted) poses: {"vo", "sfm",
-    "pairs"}; None when fewer than two views have a pose in both and a depth map (``trajectory.depth_agreement``)."""
-    from stereo_recon.trajectory import depth_agreement
+    "pairs"}; None when fewer than two views have a pose in both and a depth map (``fusion.depth_agreement``)."""
+    from stereo_recon.fusion import depth_agreement
 
     pos_vo = {int(i): k for k, i in enumerate(vo.indices)}
     pos_sfm = {int(i): k for k, i in enumerate(sfm.indices)}

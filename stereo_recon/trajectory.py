@@ -286,46 +286,6 @@ def graft_poses(base: Trajectory, refined: Trajectory, keep_refined_scale: bool 
     return Trajectory(base.indices.copy(), base.timestamps_s.copy(), T, dict(base.stats)), stats
 
 
-def depth_agreement(T_wc: np.ndarray, depths_m: list, K: np.ndarray, fb_px_m: float, tol_px: float = 1.0,
-                    step_px: int = 8) -> np.ndarray:
-    """How well consecutive views' depth maps agree under the given poses: one fraction per consecutive pair.
-
-    T_wc: (N, 4, 4) world-from-camera poses (m) of N views; depths_m: their N z-depth maps (H, W) in metres
-    (NaN or <= 0 where invalid), each in its own camera; K (3, 3) px the cameras' intrinsics; fb_px_m: the rig's
-    focal x baseline (px m), so that agreement is judged in disparity, as the rig measured it. For each pair
-    (k, k+1), the valid pixels of view k on a grid of step_px are moved into view k+1; the fraction of them that
-    land inside view k+1 on a valid depth within tol_px of disparity of their own is returned ((N-1,)). Poses
-    that put two views in the wrong place relative to each other move the points off their surfaces, out of the
-    view, or behind it, and their pair's fraction drops towards 0 (issue 12, fifty-sixth round: a full-scale
-    tanker whose odometry broke at four of its twelve pairs read 0.00 there and 0.45-0.55 elsewhere).
-    """
-    K = np.asarray(K, np.float64)
-    Kinv = np.linalg.inv(K)
-    out = np.zeros(max(len(depths_m) - 1, 0))
-    for k in range(len(out)):
-        za, zb_map = np.asarray(depths_m[k]), np.asarray(depths_m[k + 1])
-        v, u = np.mgrid[0:za.shape[0]:step_px, 0:za.shape[1]:step_px]
-        z = za[::step_px, ::step_px]
-        ok = np.isfinite(z) & (z > 0)
-        if not ok.any():
-            continue
-        X = (Kinv @ np.vstack([u[ok], v[ok], np.ones(int(ok.sum()))])) * z[ok]
-        T = np.linalg.inv(T_wc[k + 1]) @ T_wc[k]
-        Y = T[:3, :3] @ X + T[:3, 3:4]
-        front = Y[2] > 1e-6
-        p = K @ Y
-        x = p[0] / np.where(front, p[2], 1.0)
-        y = p[1] / np.where(front, p[2], 1.0)
-        h, w = zb_map.shape[:2]
-        inside = front & (x >= -0.5) & (x < w - 0.5) & (y >= -0.5) & (y < h - 0.5)
-        zb = np.full(len(x), np.nan)
-        zb[inside] = zb_map[np.rint(y[inside]).astype(int), np.rint(x[inside]).astype(int)]
-        good = inside & np.isfinite(zb) & (zb > 0)
-        agree = np.abs(fb_px_m / Y[2][good] - fb_px_m / zb[good]) <= tol_px
-        out[k] = float(agree.sum()) / float(ok.sum())
-    return out
-
-
 def scale_error(est: Trajectory, gt: Trajectory) -> float:
     """Relative scale error ``s - 1`` of the similarity aligning est onto gt (0 for a perfectly metric est)."""
     s, _, _ = align_trajectories(est, gt)
