@@ -14,9 +14,12 @@ Targets from issue 5 are printed beside them: >= 4 frames/s VO end to end, <= 18
 ATE <= 1 % of the path, |scale error| <= 0.5 %.
 
 Data: ``--data DIR`` written by ``stereo-recon synth --preset model-truck --out DIR --rectified --depth``
-(video.avi, rig.yaml, poses_gt.txt, depth/), else rendered into ``--cache`` with the synth package.
+(video.avi, rig.yaml, poses_gt.txt, depth/), else rendered into ``--cache`` with the synth package; or
+``--draw DIR``, one draw of ``stereo-recon bench --random`` (``OUT/draws/draw_NNN``: video, SN*.conf, poses_gt.txt,
+truth.json) read as ``stereo-recon run`` reads it (its calibration file, the run's rectification, disparity range and
+SGBM preset), with the exact depth rendered again from the draw's spec: how odometry alone fares on an envelope draw.
 
-Run:  .venv/bin/python benchmarks/bench_poses.py [--data DIR] [--frames 120] [--sfm-every 2] [--skip-sfm]
+Run:  .venv/bin/python benchmarks/bench_poses.py [--data DIR | --draw DIR] [--frames 120] [--sfm-every 2] [--skip-sfm]
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))   # sibling scripts (bench_depth_bias) for --draw
 
 
 def _ensure_data(args) -> Path:
@@ -68,9 +72,47 @@ def _scores(est, gt) -> dict:
             "n": ate["n"]}
 
 
+def _draw_inputs(draw: Path):
+    """What ``stereo-recon run`` derives from one ``bench --random`` draw, plus its truth.
+
+    Returns (source, rectification, DisparityConfig, depth_min_m, depth_max_m, ground-truth trajectory of the physical
+    left camera, gt_depth(idx, (H, W)) -> the exact z-depth (m) in the rectified left camera).
+    """
+    import json
+
+    import bench_depth_bias as bdb
+    from calib.io import parse_calib_arg
+    from stereo_recon.core.manifest import Stopwatch
+    from stereo_recon.reconstruct_config import ReconstructConfig
+    from stereo_recon.stages.inputs import open_input
+    from stereo_recon.trajectory import read_tum
+    from stereo_recon.video import open_stereo_source
+
+    video = next(draw.glob("video.*"))
+    conf = next(draw.glob("SN*.conf"))
+    cfg = ReconstructConfig()
+    rig = parse_calib_arg(str(conf), image_size=open_stereo_source(video).eye_size)
+    setup = open_input(video, rig, cfg, Stopwatch(), conf)
+    truth = json.loads((draw / "truth.json").read_text())
+    gt = read_tum(draw / "poses_gt.txt", fps=setup.source.fps)
+    depth_of = bdb._rendered_depth(draw, truth)   # the raw left eye's z-depth, rendered again from the draw's spec
+
+    def gt_depth(idx, shape):
+        return bdb.resample_rendered(shape, setup.rect.K_rect, np.eye(3), setup.rect.R1, setup.rig, depth_of(idx))
+    return setup.source, setup.rect, setup.disparity, cfg.depth_min_m, setup.depth_max_m, gt, gt_depth
+
+
 def main(argv=None) -> int:
+    compare(argv)
+    return 0
+
+
+def compare(argv=None) -> dict:
+    """Runs the back-ends and prints the table; returns {back-end: _scores against the ground truth}."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", help="synth output folder (video.avi, rig.yaml, poses_gt.txt, depth/)")
+    src_arg = ap.add_mutually_exclusive_group()
+    src_arg.add_argument("--data", help="synth output folder (video.avi, rig.yaml, poses_gt.txt, depth/)")
+    src_arg.add_argument("--draw", help="a `bench --random` draw folder (OUT/draws/draw_NNN): read as `run` reads it")
     ap.add_argument("--preset", default="model-truck")
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--cache", help="where to render when --data is not given")
@@ -89,22 +131,28 @@ def main(argv=None) -> int:
     from stereo_recon.trajectory import Trajectory, read_tum
     from stereo_recon.video import open_stereo_source
 
-    data = _ensure_data(args)
-    video = next(p for p in (data / "video.avi", data / "video.mp4") if p.is_file())
-    src = open_stereo_source(video)
-    rig = load_rig(data / "rig.yaml", image_size=src.eye_size)
-    rect = rig.rectification()
+    if args.draw:
+        src, rect, dcfg, depth_min, depth_max, gt, gt_depth = _draw_inputs(Path(args.draw))
+        video = src.path
+    else:
+        data = _ensure_data(args)
+        video = next(p for p in (data / "video.avi", data / "video.mp4") if p.is_file())
+        src = open_stereo_source(video)
+        rig = load_rig(data / "rig.yaml", image_size=src.eye_size)
+        rect = rig.rectification()
+        gt = read_tum(data / "poses_gt.txt", fps=src.fps)
+        depth_min, depth_max = 0.3, 20.0
+        d0, dn = disparity_range_for_depth(rect.focal_px, rect.baseline_m, depth_min, depth_max)
+        dcfg = preset(args.disparity_preset, min_disparity_px=d0, num_disparities_px=dn)
+        gt_depth_dir = data / "depth"   # rendered by a rectified rig: already the rectified left camera's
+        gt_depth = (lambda idx, shape: np.load(gt_depth_dir / f"{idx:06d}.npy")) if gt_depth_dir.is_dir() else None
     K, B, f = rect.K_rect, rect.baseline_m, rect.focal_px
-    gt = read_tum(data / "poses_gt.txt", fps=src.fps)
-    depth_min, depth_max = 0.3, 20.0
-    d0, dn = disparity_range_for_depth(f, B, depth_min, depth_max)
-    dcfg = preset(args.disparity_preset, min_disparity_px=d0, num_disparities_px=dn)
-    gt_depth_dir = data / "depth"
     print(f"data: {video} ({src.eye_size[0]}x{src.eye_size[1]} per eye, {src.frame_count} frames, "
-          f"f = {f:.1f} px, B = {B * 1000:.1f} mm, disparities {d0}+{dn})", flush=True)
+          f"f = {f:.1f} px, B = {B * 1000:.1f} mm, disparities {dcfg.min_disparity_px}+{dcfg.num_disparities_px})",
+          flush=True)
 
     vo_sgbm = StereoVO(K, B, fps=src.fps)
-    vo_gt = StereoVO(K, B, fps=src.fps) if gt_depth_dir.is_dir() else None
+    vo_gt = StereoVO(K, B, fps=src.fps) if gt_depth is not None else None
     vo_sparse = StereoVO(K, B, fps=src.fps)
     work = Path(tempfile.mkdtemp(prefix="bench_poses_"))
     (work / "images").mkdir()
@@ -131,7 +179,7 @@ def main(argv=None) -> int:
         vo_sparse.track(frame.index, lg, None, timestamp_s=frame.timestamp_s, right_rect_gray=rg)
         t["vo_sparse"] += time.perf_counter() - t5
         if vo_gt is not None:
-            d_gt = np.load(gt_depth_dir / f"{frame.index:06d}.npy")
+            d_gt = gt_depth(frame.index, lg.shape)
             t4 = time.perf_counter()
             vo_gt.track(frame.index, lg, d_gt, timestamp_s=frame.timestamp_s)
             t["vo_gt"] += time.perf_counter() - t4
@@ -202,7 +250,7 @@ def main(argv=None) -> int:
         print(f"\nsfm metric scale {s.get('scale', float('nan')):.4f} (MAD {100 * s.get('scale_mad_rel', float('nan')):.2f} %, "
               f"IQR {100 * s.get('scale_iqr_rel', float('nan')):.2f} %, {s.get('scale_samples', 0)} samples), "
               f"{s.get('points3D', 0)} points, reprojection {s.get('mean_reprojection_error_px', float('nan')):.2f} px")
-    return 0
+    return scores
 
 
 if __name__ == "__main__":
