@@ -77,11 +77,16 @@ class SfMConfig:
     scale_depth_max_m: float = math.inf
     # At least this many depth/SfM correspondences are needed for a metric scale.
     scale_min_samples: int = 50
-    # Threads for pycolmap (-1: all cores). One by default: COLMAP's multi-threaded matching and
+    # Threads for pycolmap's matching and mapping (-1: all cores). One by default: COLMAP's multi-threaded matching and
     # bundle adjustment differ between identical runs in the last digits, which moves the fused cloud
     # (the 12 m preset's far-scene refinement: different cloud bytes per run); one thread repeats
     # exactly, at ~1.3x the time (poses stage there 29 s instead of 23 s).
     num_threads: int = 1
+    # Threads for SIFT extraction alone (-1: all cores). Each image's features are computed by one thread from that
+    # image alone, so the features, and every pose after them, are the same whatever the count (checked: a far
+    # full-scale draw's 34 views gave bit-identical poses with 1 and all threads; matching with more threads did
+    # not). Extraction is about a third of a far scene's bundle adjustment (2085/4: 29 of 91 s on one thread).
+    extraction_threads: int = -1
     # Seed of pycolmap's RANSAC and mapper.
     seed: int = 0
 
@@ -203,7 +208,7 @@ def _feature_options(pycolmap, K: np.ndarray, first_image: Path, config: SfMConf
     # COLMAP puts pixel centres at +0.5 (image origin at the top-left corner), OpenCV at integers.
     reader.camera_params = ",".join(f"{v:.9g}" for v in (K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5))
     extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = config.num_threads
+    extraction.num_threads = config.extraction_threads
     extraction.max_image_size = config.max_image_size
     extraction.sift.peak_threshold = config.sift_peak_threshold
     first = cv2.imread(str(first_image), cv2.IMREAD_UNCHANGED)
