@@ -99,7 +99,8 @@ def _draw_inputs(draw: Path):
 
     def gt_depth(idx, shape):
         return bdb.resample_rendered(shape, setup.rect.K_rect, np.eye(3), setup.rect.R1, setup.rig, depth_of(idx))
-    return setup.source, setup.rect, setup.disparity, cfg.depth_min_m, setup.depth_max_m, gt, gt_depth
+    rect = setup.rig.rectification(alpha=0.0, map_type="16SC2")   # the run's fixed-point maps (stereo_recon.rectifier)
+    return setup.source, rect, setup.disparity, cfg.depth_min_m, setup.depth_max_m, gt, gt_depth
 
 
 def main(argv=None) -> int:
