@@ -96,10 +96,11 @@ def _draw_inputs(draw: Path):
     truth = json.loads((draw / "truth.json").read_text())
     gt = read_tum(draw / "poses_gt.txt", fps=setup.source.fps)
     depth_of = bdb._rendered_depth(draw, truth)   # the raw left eye's z-depth, rendered again from the draw's spec
+    rect = setup.rig.rectification(alpha=0.0, map_type="16SC2")   # the run's fixed-point maps (stereo_recon.rectifier)
 
     def gt_depth(idx, shape):
-        return bdb.resample_rendered(shape, setup.rect.K_rect, np.eye(3), setup.rect.R1, setup.rig, depth_of(idx))
-    rect = setup.rig.rectification(alpha=0.0, map_type="16SC2")   # the run's fixed-point maps (stereo_recon.rectifier)
+        return bdb.resample_rendered(shape, rect.K_rect, np.eye(3), rect.R1, setup.rig, depth_of(idx))
+
     return setup.source, rect, setup.disparity, cfg.depth_min_m, setup.depth_max_m, gt, gt_depth
 
 
