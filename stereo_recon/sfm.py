@@ -85,7 +85,8 @@ class SfMConfig:
     # Threads for SIFT extraction alone (-1: all cores). Each image's features are computed by one thread from that
     # image alone, so the features, and every pose after them, are the same whatever the count (checked: a far
     # full-scale draw's 34 views gave bit-identical poses with 1 and all threads; matching with more threads did
-    # not). Extraction is about a third of a far scene's bundle adjustment (2085/4: 29 of 91 s on one thread).
+    # not). Extraction is about 40 % of a far scene's bundle adjustment on one thread (2085/4's 34 views, alone on 2
+    # cores: 21.9 of 54.4 s; 9.7 s on both: `benchmarks/bench_sfm.py`, docs/ROUNDS.md, issue 12's fifty-seventh round).
     extraction_threads: int = -1
     # Seed of pycolmap's RANSAC and mapper.
     seed: int = 0
