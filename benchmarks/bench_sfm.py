@@ -6,8 +6,9 @@ SN*.conf, poses_gt.txt): 17 views spread over the recording, each with the frame
 (``stereo_recon.sfm.sfm_poses``), once per variant, timed by phase (feature extraction, matching, incremental
 mapping), scored against the rendered cameras (ATE relative to the path after a similarity, rotation rms), and
 compared pose for pose with the first variant:
-  1 thread    ``SfMConfig(extraction_threads=1)``, what every phase used before (the reference)
-  all cores   ``SfMConfig()``: extraction on every core; matching and mapping stay on ``num_threads`` (1)
+  1 thread    ``SfMConfig()``: every phase on one thread, the default (repeatable to the last digit; the reference)
+  all cores   ``SfMConfig(extraction_threads=-1)``: extraction on every core; matching and mapping on one. Faster, but
+              COLMAP numbers the images as their extraction finishes, so the poses can differ run to run
 
 Run:  .venv/bin/python benchmarks/bench_sfm.py --draw out/envelope-2085/draws/draw_004 [--repeat 2]
 """
@@ -53,7 +54,7 @@ def write_views(draw: Path, out: Path) -> tuple[np.ndarray, np.ndarray]:
         if frame.index in wanted:
             left, _ = rectify_pair(frame.left, cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY), rect)
             cv2.imwrite(str(out / f"{frame.index:06d}.png"), left)
-    return np.array([[rect.focal_px, 0.0, rect.cx_px], [0.0, rect.focal_px, rect.cy_px], [0.0, 0.0, 1.0]]), rect.R1
+    return rect.K_rect, rect.R1
 
 
 def main(argv=None) -> int:
@@ -93,7 +94,7 @@ def main(argv=None) -> int:
         images = len(list((work / "images").iterdir()))
         print(f"{draw}: {images} views, {os.cpu_count()} cores", flush=True)
         rows = {}
-        for label, config in (("1 thread", SfMConfig(extraction_threads=1)), ("all cores", SfMConfig())):
+        for label, config in (("1 thread", SfMConfig()), ("all cores", SfMConfig(extraction_threads=-1))):
             best = None
             for k in range(args.repeat):
                 spent.clear()

@@ -82,12 +82,12 @@ class SfMConfig:
     # (the 12 m preset's far-scene refinement: different cloud bytes per run); one thread repeats
     # exactly, at ~1.3x the time (poses stage there 29 s instead of 23 s).
     num_threads: int = 1
-    # Threads for SIFT extraction alone (-1: all cores). Each image's features are computed by one thread from that
-    # image alone, so the features, and every pose after them, are the same whatever the count (checked: a far
-    # full-scale draw's 34 views gave bit-identical poses with 1 and all threads; matching with more threads did
-    # not). Extraction is about 40 % of a far scene's bundle adjustment on one thread (2085/4's 34 views, alone on 2
-    # cores: 21.9 of 54.4 s; 9.7 s on both: `benchmarks/bench_sfm.py`, docs/ROUNDS.md, issue 12's fifty-seventh round).
-    extraction_threads: int = -1
+    # Threads for SIFT extraction alone (-1: all cores). Each image's features are the same whatever the count, but
+    # COLMAP numbers the images in the order their extraction finishes, so with more threads the image ids, hence
+    # the mapper's order and the poses' last digits, change from run to run (2085/4's 34 views: ids permuted in 2 of
+    # 3 runs on 2 threads, poses not bit-identical). One keeps runs repeatable; more is faster (there 9.7 s instead of
+    # 21.9 s on 2 cores: `benchmarks/bench_sfm.py`, docs/ROUNDS.md, issue 12's fifty-seventh round).
+    extraction_threads: int = 1
     # Seed of pycolmap's RANSAC and mapper.
     seed: int = 0
 
